@@ -1,0 +1,29 @@
+# Common settings for hapticctrl's scripts. Sourced, not run.
+# shellcheck shell=bash
+
+HAP_ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+# Everything built outside the checkout (kernel trees, tools) lives here, so a
+# fresh clone on the same machine reuses it.
+HAP_CACHE=${HAP_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/hapticctrl}
+HAP_TOOLS="$HAP_CACHE/tools"
+HAP_KERNEL_VERSION=7.3
+# LLVM suffix: Debian names the tools clang-22, ld.lld-22, ...
+HAP_LLVM=-22
+HAP_RUSTC=/usr/bin/rustc
+export PATH="$HAP_TOOLS/bin:$PATH"
+
+log() { printf '[hapticctrl %s] %s\n' "$(date +%H:%M:%S)" "$*" >&2; }
+die() { printf '[hapticctrl] error: %s\n' "$*" >&2; exit 1; }
+
+# The kernel build directory for a variant ("" or "debug"): keyed by the
+# kernel source package version and the hash of the config fragments.
+hap_kernel_dir() {
+  local variant=${1:-}
+  local frags=("$HAP_ROOT/scripts/kernel.config")
+  [ "$variant" = debug ] && frags+=("$HAP_ROOT/scripts/kernel-debug.config")
+  local srcver
+  srcver=$(dpkg-query -W -f='${Version}' "linux-source-$HAP_KERNEL_VERSION" 2>/dev/null || echo unknown)
+  local hash
+  hash=$(cat "${frags[@]}" | sha256sum | cut -c1-12)
+  echo "$HAP_CACHE/kernel/${srcver//[^A-Za-z0-9.+-]/_}-${variant:-base}-$hash"
+}

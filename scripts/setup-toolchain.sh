@@ -1,0 +1,115 @@
+#!/usr/bin/env bash
+# Install everything hapticctrl needs to build its test kernel, its Rust kernel
+# module and its userspace, on a Debian 12 (bookworm) machine. Idempotent: a
+# second run checks a stamp and the tools' versions and returns in a second.
+#
+# Facts behind the choices: Documentation/development.md ("Toolchain").
+#  - rustc-web + rust-web-src (bookworm-security) are a matching pair: the
+#    kernel builds `core` from that source with that compiler.
+#  - clang/lld/llvm 22 share rustc-web's LLVM; bindgen needs libclang >= 17.
+#  - linux-source-7.3 comes from trixie-backports, QEMU 10 from
+#    bookworm-backports. Suites beyond bookworm get Pin-Priority 100 so that
+#    only the packages named here come from them; nothing installed is upgraded.
+set -euo pipefail
+
+HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+# shellcheck source=scripts/lib.sh
+. "$HERE/lib.sh"
+
+BINDGEN_VERSION=0.73.2
+STAMP_VERSION=3 # bump when the package list below changes
+
+APT_PACKAGES_BOOKWORM=(
+  build-essential flex bison bc cpio kmod libelf-dev busybox-static
+  python3 rsync xz-utils zstd
+)
+APT_PACKAGES_SECURITY=(
+  rustc-web rust-web-src clang-22 lld-22 llvm-22 libclang-22-dev
+)
+APT_PACKAGES_BPO=(qemu-system-x86 qemu-system-common qemu-system-data seabios)
+APT_PACKAGES_TRIXIE_BPO=(linux-source-7.3)
+
+SUDO=""
+if [ "$(id -u)" != 0 ]; then SUDO=sudo; fi
+
+stamp="$HAP_CACHE/toolchain.stamp"
+
+toolchain_ok() {
+  [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$STAMP_VERSION" ] || return 1
+  [ -x /usr/bin/rustc ] && /usr/bin/rustc --version | grep -q '^rustc 1\.9[6-9]' || return 1
+  [ -d /usr/lib/rustlib/src/rust/library/core ] || return 1
+  command -v clang-22 >/dev/null && command -v ld.lld-22 >/dev/null || return 1
+  [ -x "$HAP_TOOLS/bin/bindgen" ] && "$HAP_TOOLS/bin/bindgen" --version | grep -q " $BINDGEN_VERSION\$" || return 1
+  command -v qemu-system-x86_64 >/dev/null && [ -x /bin/busybox ] || return 1
+  ls /usr/src/linux-source-7.3.tar.* >/dev/null 2>&1 || return 1
+  return 0
+}
+
+if toolchain_ok; then
+  log "toolchain already installed ($(/usr/bin/rustc --version), clang-22, bindgen $BINDGEN_VERSION, $(qemu-system-x86_64 --version | head -1)): nothing to do"
+  exit 0
+fi
+
+log "installing the hapticctrl toolchain (this takes a minute or two)"
+mkdir -p "$HAP_CACHE" "$HAP_TOOLS"
+
+# Extra suites, all at low priority.
+$SUDO tee /etc/apt/sources.list.d/hapticctrl-suites.sources >/dev/null <<'EOF'
+# Added by hapticctrl scripts/setup-toolchain.sh. Only packages named there
+# come from these suites (see /etc/apt/preferences.d/hapticctrl).
+Types: deb
+URIs: http://deb.debian.org/debian
+Suites: bookworm-backports trixie trixie-backports
+Components: main
+Signed-By: /usr/share/keyrings/debian-archive-keyring.gpg
+EOF
+$SUDO tee /etc/apt/preferences.d/hapticctrl >/dev/null <<'EOF'
+# Added by hapticctrl scripts/setup-toolchain.sh: never prefer the newer suites.
+Package: *
+Pin: release n=trixie
+Pin-Priority: 100
+
+Package: *
+Pin: release n=trixie-backports
+Pin-Priority: 100
+
+Package: *
+Pin: release n=bookworm-backports
+Pin-Priority: 100
+EOF
+
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -q -o Acquire::Retries=3 >/dev/null
+
+# Leave installed packages alone: only ask for what is missing.
+missing=()
+for p in "${APT_PACKAGES_BOOKWORM[@]}" "${APT_PACKAGES_SECURITY[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p")
+done
+for p in "${APT_PACKAGES_BPO[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p/bookworm-backports")
+done
+for p in "${APT_PACKAGES_TRIXIE_BPO[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p/trixie-backports")
+done
+
+if [ ${#missing[@]} -gt 0 ]; then
+  log "apt: ${missing[*]}"
+  # Dry run first: refuse to go on if apt wants to upgrade or remove anything.
+  plan=$($SUDO apt-get -s -y --no-install-recommends install "${missing[@]}")
+  if echo "$plan" | grep -E '^(Remv|Inst [^ ]+ \[)' >/dev/null; then
+    echo "$plan" | grep -E '^(Remv|Inst [^ ]+ \[)' >&2
+    die "apt would upgrade or remove installed packages (above); refusing"
+  fi
+  $SUDO apt-get install -y -q --no-install-recommends -o Acquire::Retries=3 "${missing[@]}" >/dev/null
+fi
+
+# bindgen-cli at a pinned version, built with the machine's cargo into our tool dir.
+if ! { [ -x "$HAP_TOOLS/bin/bindgen" ] && "$HAP_TOOLS/bin/bindgen" --version | grep -q " $BINDGEN_VERSION\$"; }; then
+  log "cargo install bindgen-cli $BINDGEN_VERSION (about a minute)"
+  cargo install --quiet --locked --root "$HAP_TOOLS" bindgen-cli --version "$BINDGEN_VERSION"
+fi
+
+toolchain_ok || { echo "$STAMP_VERSION" >"$stamp"; toolchain_ok; } || die "toolchain check failed after install"
+echo "$STAMP_VERSION" >"$stamp"
+log "toolchain ready: $(/usr/bin/rustc --version); $(clang-22 --version | head -1); bindgen $BINDGEN_VERSION; $(qemu-system-x86_64 --version | head -1)"

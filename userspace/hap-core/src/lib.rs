@@ -1,0 +1,15 @@
+//! hap-core: the pure logic of hapticctrl.
+//!
+//! Everything that computes lives here once: the kernel module includes this
+//! crate by source path (`#[path = ".../lib.rs"] mod hap_core;`) and the
+//! userspace tools depend on it through cargo. Rules for every file:
+//! - `no_std`, no dependencies, no allocation;
+//! - no `f32`/`f64`/`i128` arithmetic outside `#[cfg(any(test, feature = "float"))]`
+//!   (the kernel's soft-float and 128-bit helpers panic);
+//! - never panic on input: saturate, or return a typed error.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+
+pub mod config;
+pub mod fixed;
+pub mod vp;
