@@ -1,0 +1,343 @@
+//! hap_proto_interface: the user-space half of the haptic protocol
+//! (spec D9rb.2 §3.3.1.1 and §3.3.1.4).
+//!
+//! - SERVER thread: receives UDP datagrams from the client application and
+//!   writes each whole, valid frame to the kernel's input device
+//!   (`/dev/hap_rtf_in`, one frame per `write()`).
+//! - CLIENT thread: reads whole answer frames from `/dev/hap_rtf_out` (one
+//!   frame per `read()`, 90-byte buffer) and sends them to the session's
+//!   client with `sendto()`, from the same UDP socket (so NAT and port
+//!   forwards see one flow).
+//! - The main thread (see `main.rs`) sleeps until SIGTERM/SIGINT or until a
+//!   thread reports that a device went away, prints the counters on SIGUSR1.
+//!
+//! Frames are classified with hap-core's decoder (the one source of truth for
+//! the frame layout); nothing is re-encoded here: the bytes written to the
+//! kernel are exactly the bytes received.
+
+pub mod counters;
+pub mod frames;
+pub mod session;
+
+use std::fs::{File, OpenOptions};
+use std::io::{ErrorKind, Read, Write};
+use std::net::{SocketAddr, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use counters::Counters;
+use session::{Decision, Session};
+
+/// Largest frame the protocol allows (spec §3.3.1.1: 90 bytes).
+pub const MAX_FRAME: usize = frames::MAX_FRAME;
+
+/// Everything the bridge needs; built from the command line in `main.rs`.
+#[derive(Clone, Debug)]
+pub struct Config {
+    pub bind: SocketAddr,
+    pub rtf_in: PathBuf,
+    pub rtf_out: PathBuf,
+    pub stats_file: Option<PathBuf>,
+    pub session_timeout: Duration,
+    /// How often the stats file is rewritten.
+    pub stats_interval: Duration,
+}
+
+/// State shared by the threads and the main thread.
+pub struct Shared {
+    pub counters: Counters,
+    pub client: Mutex<Option<SocketAddr>>,
+    pub stop: AtomicBool,
+    /// Set by a thread that hit a fatal condition (device gone...).
+    pub fatal: Mutex<Option<String>>,
+}
+
+impl Shared {
+    pub fn client(&self) -> Option<SocketAddr> {
+        self.client.lock().map(|g| *g).unwrap_or(None)
+    }
+
+    /// The counters as `key: value` text.
+    pub fn render(&self) -> String {
+        self.counters.render(self.client())
+    }
+
+    fn set_fatal(&self, why: String) {
+        if let Ok(mut f) = self.fatal.lock() {
+            if f.is_none() {
+                *f = Some(why);
+            }
+        }
+        self.stop.store(true, Ordering::SeqCst);
+    }
+}
+
+/// Write the stats file atomically (temp file + rename).
+pub fn write_stats_file(path: &Path, text: &str) -> std::io::Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    std::fs::write(&tmp, text)?;
+    std::fs::rename(&tmp, path)
+}
+
+/// Bind the UDP socket (SO_REUSEADDR, a large receive buffer for bursts).
+pub fn bind_socket(addr: SocketAddr) -> std::io::Result<UdpSocket> {
+    use socket2::{Domain, Protocol, Socket, Type};
+    let sock = Socket::new(Domain::for_address(addr), Type::DGRAM, Some(Protocol::UDP))?;
+    sock.set_reuse_address(true)?;
+    let _ = sock.set_recv_buffer_size(1 << 20);
+    sock.bind(&addr.into())?;
+    let udp: UdpSocket = sock.into();
+    udp.set_read_timeout(Some(Duration::from_millis(100)))?;
+    Ok(udp)
+}
+
+/// Open a device, retrying until it exists (the launch script starts the
+/// bridge before it inserts the module) or until `stop` is set.
+fn open_device(path: &Path, write: bool, shared: &Shared) -> Option<File> {
+    let mut warned = false;
+    loop {
+        if shared.stop.load(Ordering::SeqCst) {
+            return None;
+        }
+        let r = if write {
+            OpenOptions::new().write(true).open(path)
+        } else {
+            OpenOptions::new().read(true).open(path)
+        };
+        match r {
+            Ok(f) => return Some(f),
+            Err(e) => {
+                if !warned {
+                    eprintln!("proto_interface: waiting for {} ({e})", path.display());
+                    warned = true;
+                }
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }
+    }
+}
+
+/// The running bridge: its two threads and the shared state.
+pub struct Bridge {
+    pub shared: Arc<Shared>,
+    pub local_addr: SocketAddr,
+    server: Option<JoinHandle<()>>,
+    client: Option<JoinHandle<()>>,
+}
+
+impl Bridge {
+    /// Bind the socket and start the SERVER and CLIENT threads. `on_fatal`
+    /// is called (from a worker thread) when the bridge must stop on its
+    /// own, e.g. to wake the main thread's signal loop.
+    pub fn start(
+        cfg: Config,
+        on_fatal: impl Fn() + Send + Sync + 'static,
+    ) -> std::io::Result<Bridge> {
+        let sock = bind_socket(cfg.bind)?;
+        let local_addr = sock.local_addr()?;
+        let tx = sock.try_clone()?;
+        let shared = Arc::new(Shared {
+            counters: Counters::default(),
+            client: Mutex::new(None),
+            stop: AtomicBool::new(false),
+            fatal: Mutex::new(None),
+        });
+        let on_fatal = Arc::new(on_fatal);
+
+        let sh = shared.clone();
+        let cfg_s = cfg.clone();
+        let fatal_s = on_fatal.clone();
+        let server = std::thread::Builder::new()
+            .name("SERVER".into())
+            .spawn(move || {
+                server_loop(&cfg_s, &sock, &sh);
+                if sh.fatal.lock().map(|f| f.is_some()).unwrap_or(false) {
+                    fatal_s();
+                }
+            })?;
+
+        let sh = shared.clone();
+        let fatal_c = on_fatal;
+        let client = std::thread::Builder::new()
+            .name("CLIENT".into())
+            .spawn(move || {
+                client_loop(&cfg, &tx, &sh);
+                if sh.fatal.lock().map(|f| f.is_some()).unwrap_or(false) {
+                    fatal_c();
+                }
+            })?;
+
+        Ok(Bridge {
+            shared,
+            local_addr,
+            server: Some(server),
+            client: Some(client),
+        })
+    }
+
+    /// Ask the threads to stop and wait for the SERVER thread (the CLIENT
+    /// thread may be blocked in a read of the device; it is left to die with
+    /// the process).
+    pub fn stop(&mut self) {
+        self.shared.stop.store(true, Ordering::SeqCst);
+        if let Some(h) = self.server.take() {
+            let _ = h.join();
+        }
+        if let Some(h) = self.client.take() {
+            if h.is_finished() {
+                let _ = h.join();
+            }
+        }
+    }
+}
+
+fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
+    let mut session = Session::new(cfg.session_timeout);
+    // Bigger than any valid frame so that oversized datagrams are seen as
+    // such (never truncated into the kernel).
+    let mut buf = [0u8; 2048];
+    let mut last_stats = Instant::now();
+    let mut dev: Option<File> = None;
+    let mut stats_warned = false;
+
+    loop {
+        if shared.stop.load(Ordering::SeqCst) {
+            break;
+        }
+        if dev.is_none() {
+            dev = open_device(&cfg.rtf_in, true, shared);
+            if dev.is_none() {
+                break;
+            }
+        }
+        let now = Instant::now();
+        if let Some(path) = &cfg.stats_file {
+            if now.duration_since(last_stats) >= cfg.stats_interval {
+                last_stats = now;
+                if let Err(e) = write_stats_file(path, &shared.render()) {
+                    if !stats_warned {
+                        eprintln!("proto_interface: cannot write {}: {e}", path.display());
+                        stats_warned = true;
+                    }
+                }
+            }
+        }
+        if session.expire(now) {
+            publish_session(shared, &session);
+        }
+        let (n, src) = match sock.recv_from(&mut buf) {
+            Ok(x) => x,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                ) =>
+            {
+                continue
+            }
+            Err(e) => {
+                // ICMP errors reported on the socket (ECONNREFUSED from a
+                // previous sendto) are not fatal for a UDP server.
+                if e.kind() == ErrorKind::ConnectionRefused {
+                    continue;
+                }
+                shared.set_fatal(format!("recvfrom: {e}"));
+                break;
+            }
+        };
+        Counters::inc(&shared.counters.received);
+        let data = &buf[..n];
+        let decision = match frames::classify(data) {
+            Err(r) => Decision::Drop(r),
+            Ok(kind) => session.admit(src, kind, Instant::now()),
+        };
+        match decision {
+            Decision::Drop(r) => shared.counters.reject(r),
+            Decision::Forward => {
+                publish_session(shared, &session);
+                let Some(f) = dev.as_mut() else { continue };
+                match f.write(data) {
+                    Ok(w) if w == n => Counters::inc(&shared.counters.forwarded),
+                    Ok(_) => Counters::inc(&shared.counters.write_errors),
+                    Err(e) => {
+                        Counters::inc(&shared.counters.write_errors);
+                        if is_device_gone(&e) {
+                            shared.set_fatal(format!("{}: {e}", cfg.rtf_in.display()));
+                            break;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if let Some(path) = &cfg.stats_file {
+        let _ = write_stats_file(path, &shared.render());
+    }
+}
+
+fn publish_session(shared: &Shared, session: &Session) {
+    if let Ok(mut c) = shared.client.lock() {
+        *c = session.client();
+    }
+    let c = &shared.counters;
+    c.sessions_opened.store(session.opened, Ordering::Relaxed);
+    c.sessions_closed.store(session.closed, Ordering::Relaxed);
+    c.sessions_expired.store(session.expired, Ordering::Relaxed);
+}
+
+/// Errors that mean the module is gone (or going): stop the bridge.
+fn is_device_gone(e: &std::io::Error) -> bool {
+    matches!(
+        e.raw_os_error(),
+        Some(libc::ENODEV)
+            | Some(libc::ENXIO)
+            | Some(libc::EPIPE)
+            | Some(libc::EBADF)
+            | Some(libc::ESHUTDOWN)
+    )
+}
+
+fn client_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
+    let Some(mut dev) = open_device(&cfg.rtf_out, false, shared) else {
+        return;
+    };
+    // Exactly one frame per read; never a smaller buffer (the device may
+    // answer EINVAL to a read shorter than a frame).
+    let mut buf = [0u8; MAX_FRAME];
+    loop {
+        if shared.stop.load(Ordering::SeqCst) {
+            return;
+        }
+        match dev.read(&mut buf) {
+            Ok(0) => {
+                shared.set_fatal(format!(
+                    "{}: end of file (module gone)",
+                    cfg.rtf_out.display()
+                ));
+                return;
+            }
+            Ok(n) => {
+                Counters::inc(&shared.counters.answers);
+                match shared.client() {
+                    None => Counters::inc(&shared.counters.answers_no_client),
+                    Some(to) => match sock.send_to(&buf[..n], to) {
+                        Ok(_) => Counters::inc(&shared.counters.sent),
+                        Err(_) => Counters::inc(&shared.counters.send_errors),
+                    },
+                }
+            }
+            Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+            Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_micros(200));
+            }
+            Err(e) => {
+                shared.set_fatal(format!("{}: {e}", cfg.rtf_out.display()));
+                return;
+            }
+        }
+    }
+}

@@ -1,0 +1,118 @@
+//! proto_interface: UDP <-> hapticctrl kernel module bridge.
+//! See `lib.rs` and Documentation/userguide.md.
+
+use std::net::{IpAddr, SocketAddr};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::Parser;
+use proto_interface::{write_stats_file, Bridge, Config};
+use signal_hook::consts::{SIGINT, SIGTERM, SIGUSR1};
+use signal_hook::iterator::Signals;
+
+/// Bridge between the client application (UDP) and the hapticctrl kernel
+/// module's devices (spec D9rb.2 §3.3.1.1 SERVER and §3.3.1.4 CLIENT).
+#[derive(Parser, Debug)]
+#[command(name = "proto_interface", version)]
+struct Args {
+    /// Address to bind the UDP socket to.
+    #[arg(long, default_value = "0.0.0.0")]
+    bind: IpAddr,
+    /// UDP port to listen on.
+    #[arg(long, default_value_t = 5000)]
+    port: u16,
+    /// Kernel input device (one whole frame per write).
+    #[arg(long, default_value = "/dev/hap_rtf_in")]
+    rtf_in: PathBuf,
+    /// Kernel output device (one whole answer frame per read).
+    #[arg(long, default_value = "/dev/hap_rtf_out")]
+    rtf_out: PathBuf,
+    /// Counters file, rewritten every second and at exit (`hapctl stats` reads it).
+    #[arg(long, default_value = "/run/proto_interface.stats")]
+    stats_file: PathBuf,
+    /// Do not write a counters file.
+    #[arg(long)]
+    no_stats_file: bool,
+    /// A session whose client sends nothing for this long is closed, in ms.
+    #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
+    session_timeout_ms: u64,
+    /// Print the bound address on stdout once listening (for scripts and tests).
+    #[arg(long)]
+    print_addr: bool,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let cfg = Config {
+        bind: SocketAddr::new(args.bind, args.port),
+        rtf_in: args.rtf_in,
+        rtf_out: args.rtf_out,
+        stats_file: if args.no_stats_file {
+            None
+        } else {
+            Some(args.stats_file)
+        },
+        session_timeout: Duration::from_millis(args.session_timeout_ms),
+        stats_interval: Duration::from_secs(1),
+    };
+
+    let mut signals = match Signals::new([SIGTERM, SIGINT, SIGUSR1]) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("proto_interface: cannot install signal handlers: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let handle = signals.handle();
+    let stats_file = cfg.stats_file.clone();
+    let mut bridge = match Bridge::start(cfg.clone(), move || handle.close()) {
+        Ok(b) => b,
+        Err(e) => {
+            eprintln!("proto_interface: cannot listen on {}: {e}", cfg.bind);
+            return ExitCode::FAILURE;
+        }
+    };
+    if args.print_addr {
+        println!("listening on {}", bridge.local_addr);
+    }
+    eprintln!(
+        "proto_interface: listening on udp {} ({} -> {}, {} -> client)",
+        bridge.local_addr,
+        "udp",
+        cfg.rtf_in.display(),
+        cfg.rtf_out.display()
+    );
+
+    let mut why = String::from("device gone");
+    for sig in signals.forever() {
+        match sig {
+            SIGUSR1 => {
+                eprint!("{}", bridge.shared.render());
+                if let Some(p) = &stats_file {
+                    let _ = write_stats_file(p, &bridge.shared.render());
+                }
+            }
+            SIGTERM => {
+                why = "SIGTERM".into();
+                break;
+            }
+            _ => {
+                why = "SIGINT".into();
+                break;
+            }
+        }
+    }
+    bridge.stop();
+    let fatal = bridge.shared.fatal.lock().ok().and_then(|f| f.clone());
+    if let Some(f) = &fatal {
+        why = f.clone();
+    }
+    let text = bridge.shared.render();
+    if let Some(p) = &stats_file {
+        let _ = write_stats_file(p, &text);
+    }
+    eprintln!("proto_interface: exiting ({why})");
+    eprint!("{text}");
+    ExitCode::SUCCESS
+}

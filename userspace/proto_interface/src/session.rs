@@ -1,0 +1,177 @@
+//! Session pinning: which source address may steer the arm.
+//!
+//! The first valid `OpenSession` from an address pins that address as the
+//! session's client. From then on, datagrams from any other source address
+//! are dropped (a stray host on the network must not steer the arm) until the
+//! client sends `CloseSession` or stays silent for longer than the session
+//! timeout. Frames other than `OpenSession` that arrive while no session is
+//! open are dropped too: the kernel would ignore them, and forwarding them
+//! would let anybody probe the module.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+/// What the bridge needs to know about a datagram to route it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FrameKind {
+    OpenSession,
+    CloseSession,
+    /// Any other valid frame (configuration, VprStream, power request...).
+    Other,
+}
+
+/// Why a datagram was not forwarded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reject {
+    /// Longer than the 90-byte maximum frame.
+    Oversize,
+    /// Shorter than the smallest valid frame.
+    Undersize,
+    /// Did not decode (bad magic, CRC, XDR...).
+    Malformed,
+    /// From an address other than the session's client.
+    StraySource,
+    /// Not an `OpenSession` and no session is open.
+    NoSession,
+}
+
+/// The decision for one datagram.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Decision {
+    /// Forward it to the kernel.
+    Forward,
+    /// Drop it and count the reason.
+    Drop(Reject),
+}
+
+/// Session state, owned by the SERVER thread (the CLIENT thread reads the
+/// pinned address through a shared copy).
+#[derive(Debug)]
+pub struct Session {
+    client: Option<SocketAddr>,
+    last_seen: Instant,
+    timeout: Duration,
+    /// Sessions opened, closed by the client, expired by the timeout.
+    pub opened: u64,
+    pub closed: u64,
+    pub expired: u64,
+}
+
+impl Session {
+    pub fn new(timeout: Duration) -> Session {
+        Session {
+            client: None,
+            last_seen: Instant::now(),
+            timeout,
+            opened: 0,
+            closed: 0,
+            expired: 0,
+        }
+    }
+
+    /// The pinned client, if a session is open.
+    pub fn client(&self) -> Option<SocketAddr> {
+        self.client
+    }
+
+    /// Expire the session if the client has been silent too long.
+    /// Returns true if it expired now.
+    pub fn expire(&mut self, now: Instant) -> bool {
+        if self.client.is_some() && now.saturating_duration_since(self.last_seen) > self.timeout {
+            self.client = None;
+            self.expired += 1;
+            return true;
+        }
+        false
+    }
+
+    /// Decide what to do with a valid frame of `kind` from `src` at `now`.
+    pub fn admit(&mut self, src: SocketAddr, kind: FrameKind, now: Instant) -> Decision {
+        self.expire(now);
+        match self.client {
+            Some(client) if client != src => Decision::Drop(Reject::StraySource),
+            Some(_) => {
+                self.last_seen = now;
+                if kind == FrameKind::CloseSession {
+                    self.client = None;
+                    self.closed += 1;
+                }
+                Decision::Forward
+            }
+            None => match kind {
+                FrameKind::OpenSession => {
+                    self.client = Some(src);
+                    self.last_seen = now;
+                    self.opened += 1;
+                    Decision::Forward
+                }
+                _ => Decision::Drop(Reject::NoSession),
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn a(port: u16) -> SocketAddr {
+        SocketAddr::from(([127, 0, 0, 1], port))
+    }
+
+    #[test]
+    fn first_open_pins_the_client() {
+        let mut s = Session::new(Duration::from_secs(5));
+        let t = Instant::now();
+        assert_eq!(
+            s.admit(a(1), FrameKind::Other, t),
+            Decision::Drop(Reject::NoSession)
+        );
+        assert_eq!(s.admit(a(1), FrameKind::OpenSession, t), Decision::Forward);
+        assert_eq!(s.client(), Some(a(1)));
+        assert_eq!(s.admit(a(1), FrameKind::Other, t), Decision::Forward);
+        // A second client is refused, even with an OpenSession.
+        assert_eq!(
+            s.admit(a(2), FrameKind::OpenSession, t),
+            Decision::Drop(Reject::StraySource)
+        );
+        assert_eq!(
+            s.admit(a(2), FrameKind::Other, t),
+            Decision::Drop(Reject::StraySource)
+        );
+        // The same client re-opening is forwarded (the kernel resets its session).
+        assert_eq!(s.admit(a(1), FrameKind::OpenSession, t), Decision::Forward);
+    }
+
+    #[test]
+    fn close_frees_the_session() {
+        let mut s = Session::new(Duration::from_secs(5));
+        let t = Instant::now();
+        s.admit(a(1), FrameKind::OpenSession, t);
+        assert_eq!(s.admit(a(1), FrameKind::CloseSession, t), Decision::Forward);
+        assert_eq!(s.client(), None);
+        assert_eq!(s.admit(a(2), FrameKind::OpenSession, t), Decision::Forward);
+        assert_eq!(s.client(), Some(a(2)));
+        assert_eq!((s.opened, s.closed), (2, 1));
+    }
+
+    #[test]
+    fn silence_expires_the_session() {
+        let mut s = Session::new(Duration::from_millis(100));
+        let t = Instant::now();
+        s.admit(a(1), FrameKind::OpenSession, t);
+        let later = t + Duration::from_millis(50);
+        assert_eq!(
+            s.admit(a(2), FrameKind::OpenSession, later),
+            Decision::Drop(Reject::StraySource)
+        );
+        // Stray traffic does not keep the session alive.
+        let much_later = t + Duration::from_millis(200);
+        assert_eq!(
+            s.admit(a(2), FrameKind::OpenSession, much_later),
+            Decision::Forward
+        );
+        assert_eq!(s.expired, 1);
+        assert_eq!(s.client(), Some(a(2)));
+    }
+}
