@@ -11,5 +11,8 @@
 #![forbid(unsafe_code)]
 
 pub mod config;
+pub mod crc;
 pub mod fixed;
+pub mod protocol;
 pub mod vp;
+pub mod xdr;
