@@ -10,9 +10,18 @@
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod clock;
 pub mod config;
 pub mod crc;
 pub mod fixed;
 pub mod protocol;
+pub mod stats;
 pub mod vp;
 pub mod xdr;
+pub mod arm;
+pub mod control;
+pub mod effort;
+pub mod io;
+pub mod servo;
+pub mod simulator;
+pub mod state_model;

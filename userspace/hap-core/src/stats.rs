@@ -1,0 +1,775 @@
+//! Timing statistics and counters, integer only (spec §3.4: "perform
+//! jitters computation and update statistics"), and their text rendering
+//! for `cat /dev/hap_stats` plus a parser for that text (hapctl).
+//!
+//! Three timing series, each with min/avg/max in ns and a 1 µs-bucket
+//! histogram (`HIST_BUCKETS` buckets for 0..999 µs + an overflow count)
+//! giving p50/p99/p99.9 in µs:
+//! - `wakeup`: SERVO wake-up latency after CLOCK released it;
+//! - `exec`: SERVO cycle execution time;
+//! - `jitter`: |actual period − nominal period| of CLOCK's tops, with the
+//!   signed extremes kept apart.
+//!
+//! Size: one [`TimingStat`] is ~4 KiB, [`HapStats`] ~12.2 KiB — allocate it
+//! (kernel: in the module's state, not on the stack).
+//!
+//! Text format (one `key: value` per line, `#` lines are comments,
+//! values are decimal integers; see [`render_summary`]).
+
+use core::fmt::{self, Write};
+
+use crate::clock::Verdict;
+use crate::protocol::{DecodeError, REASON_NAMES};
+
+/// Histogram buckets, 1 µs each: bucket `i` counts values in [i, i+1) µs.
+pub const HIST_BUCKETS: usize = 1000;
+
+/// Version of the text format (`version:` line).
+pub const TEXT_VERSION: u64 = 1;
+
+/// A buffer big enough for [`HapStats::render`].
+pub const RENDER_MAX: usize = 4096;
+
+/// 1 µs-bucket histogram with overflow count.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Histogram {
+    buckets: [u32; HIST_BUCKETS],
+    overflow: u64,
+    count: u64,
+}
+
+impl Default for Histogram {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Histogram {
+    pub const fn new() -> Self {
+        Histogram {
+            buckets: [0; HIST_BUCKETS],
+            overflow: 0,
+            count: 0,
+        }
+    }
+
+    /// Count one value given in µs (values ≥ `HIST_BUCKETS` go to overflow).
+    pub fn record_us(&mut self, us: u64) {
+        self.count = self.count.saturating_add(1);
+        let slot = usize::try_from(us)
+            .ok()
+            .and_then(|i| self.buckets.get_mut(i));
+        match slot {
+            Some(b) => *b = b.saturating_add(1),
+            None => self.overflow = self.overflow.saturating_add(1),
+        }
+    }
+
+    /// Values recorded.
+    pub const fn count(&self) -> u64 {
+        self.count
+    }
+
+    /// Values ≥ `HIST_BUCKETS` µs.
+    pub const fn overflow(&self) -> u64 {
+        self.overflow
+    }
+
+    /// Count of bucket `i` (0 if out of range).
+    pub fn bucket(&self, i: usize) -> u32 {
+        self.buckets.get(i).copied().unwrap_or(0)
+    }
+
+    /// The `num/den` quantile in µs: the smallest bucket `v` such that at
+    /// least ⌈count·num/den⌉ (≥ 1) values are ≤ `v`. Returns
+    /// `HIST_BUCKETS` if that rank falls in the overflow, 0 when empty.
+    pub fn quantile_us(&self, num: u64, den: u64) -> u32 {
+        if self.count == 0 || den == 0 {
+            return 0;
+        }
+        let prod = self.count.saturating_mul(num.min(den));
+        let rank = prod.div_ceil(den).max(1);
+        let mut cum: u64 = 0;
+        for (i, &b) in self.buckets.iter().enumerate() {
+            cum = cum.saturating_add(u64::from(b));
+            if cum >= rank {
+                return i as u32;
+            }
+        }
+        HIST_BUCKETS as u32
+    }
+
+    pub fn clear(&mut self) {
+        *self = Self::new();
+    }
+}
+
+/// min/avg/max (ns) + histogram (µs) of one timing series.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct TimingStat {
+    min_ns: u64,
+    max_ns: u64,
+    sum_ns: u64,
+    last_ns: u64,
+    hist: Histogram,
+}
+
+/// p50 in parts per million.
+pub const P50: u64 = 500_000;
+/// p99 in parts per million.
+pub const P99: u64 = 990_000;
+/// p99.9 in parts per million.
+pub const P999: u64 = 999_000;
+const PPM: u64 = 1_000_000;
+
+impl TimingStat {
+    pub const fn new() -> Self {
+        TimingStat {
+            min_ns: u64::MAX,
+            max_ns: 0,
+            sum_ns: 0,
+            last_ns: 0,
+            hist: Histogram::new(),
+        }
+    }
+
+    pub fn record_ns(&mut self, ns: u64) {
+        if ns < self.min_ns {
+            self.min_ns = ns;
+        }
+        if ns > self.max_ns {
+            self.max_ns = ns;
+        }
+        self.sum_ns = self.sum_ns.saturating_add(ns);
+        self.last_ns = ns;
+        self.hist.record_us(ns / 1_000);
+    }
+
+    pub const fn count(&self) -> u64 {
+        self.hist.count
+    }
+
+    /// 0 when empty.
+    pub const fn min_ns(&self) -> u64 {
+        if self.hist.count == 0 {
+            0
+        } else {
+            self.min_ns
+        }
+    }
+
+    pub const fn max_ns(&self) -> u64 {
+        self.max_ns
+    }
+
+    pub const fn last_ns(&self) -> u64 {
+        self.last_ns
+    }
+
+    /// Mean, rounded down; 0 when empty (the sum saturates at ~584 years).
+    pub const fn avg_ns(&self) -> u64 {
+        match self.sum_ns.checked_div(self.hist.count) {
+            Some(a) => a,
+            None => 0,
+        }
+    }
+
+    pub fn histogram(&self) -> &Histogram {
+        &self.hist
+    }
+
+    pub fn summary(&self) -> TimingSummary {
+        TimingSummary {
+            count: self.count(),
+            min_ns: self.min_ns(),
+            avg_ns: self.avg_ns(),
+            max_ns: self.max_ns,
+            p50_us: self.hist.quantile_us(P50, PPM),
+            p99_us: self.hist.quantile_us(P99, PPM),
+            p999_us: self.hist.quantile_us(P999, PPM),
+            overflow: self.hist.overflow,
+        }
+    }
+
+    pub fn clear(&mut self) {
+        *self = Self::new();
+    }
+}
+
+/// Period jitter of CLOCK's tops.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct PeriodJitter {
+    nominal_ns: u64,
+    last_top_ns: Option<u64>,
+    min_ns: i64,
+    max_ns: i64,
+    abs: TimingStat,
+}
+
+impl PeriodJitter {
+    pub const fn new(nominal_ns: u64) -> Self {
+        PeriodJitter {
+            nominal_ns,
+            last_top_ns: None,
+            min_ns: 0,
+            max_ns: 0,
+            abs: TimingStat::new(),
+        }
+    }
+
+    /// A CLOCK top at monotonic time `now_ns`. The first top only sets the
+    /// reference. Returns the signed jitter (actual − nominal period, ns).
+    pub fn top(&mut self, now_ns: u64) -> Option<i64> {
+        let last = self.last_top_ns.replace(now_ns)?;
+        let actual = now_ns.wrapping_sub(last);
+        let j = i64::try_from(actual)
+            .unwrap_or(i64::MAX)
+            .saturating_sub(i64::try_from(self.nominal_ns).unwrap_or(i64::MAX));
+        if self.abs.count() == 0 {
+            self.min_ns = j;
+            self.max_ns = j;
+        } else {
+            self.min_ns = self.min_ns.min(j);
+            self.max_ns = self.max_ns.max(j);
+        }
+        self.abs.record_ns(j.unsigned_abs());
+        Some(j)
+    }
+
+    /// Most negative jitter seen (0 before two tops).
+    pub const fn min_ns(&self) -> i64 {
+        self.min_ns
+    }
+
+    /// Most positive jitter seen.
+    pub const fn max_ns(&self) -> i64 {
+        self.max_ns
+    }
+
+    /// |jitter| statistics.
+    pub fn abs(&self) -> &TimingStat {
+        &self.abs
+    }
+}
+
+/// Event counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Supervisor checks (one per period).
+    pub cycles: u64,
+    /// Deadline misses.
+    pub misses: u64,
+    pub max_consecutive_misses: u64,
+    /// Cycles run on the auxiliary (degraded) path.
+    pub degraded_cycles: u64,
+    /// 1 once fail-safe has been engaged.
+    pub fail_safe: u64,
+    /// Frames decoded successfully.
+    pub frames_in: u64,
+    /// Answer frames handed to rtf_out.
+    pub frames_out: u64,
+    /// Rejected frames, by `DecodeError::reason_index`.
+    pub frames_rejected: [u64; DecodeError::COUNT],
+    /// Answer frames not sent (protocol lock busy or FIFO full).
+    pub answers_dropped: u64,
+    /// Cycles where VPr was extrapolated (lock busy or frame late).
+    pub vpr_extrapolated: u64,
+}
+
+impl Counters {
+    /// Sum of `frames_rejected`.
+    pub fn rejected_total(&self) -> u64 {
+        self.frames_rejected
+            .iter()
+            .fold(0u64, |a, &b| a.saturating_add(b))
+    }
+}
+
+/// Everything the text shows, without histograms.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TimingSummary {
+    pub count: u64,
+    pub min_ns: u64,
+    pub avg_ns: u64,
+    pub max_ns: u64,
+    pub p50_us: u32,
+    pub p99_us: u32,
+    pub p999_us: u32,
+    pub overflow: u64,
+}
+
+/// The content of `/dev/hap_stats`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StatsSummary {
+    pub period_us: u32,
+    pub counters: Counters,
+    pub wakeup: TimingSummary,
+    pub exec: TimingSummary,
+    /// |period − nominal| statistics.
+    pub jitter: TimingSummary,
+    /// Signed jitter extremes, ns.
+    pub jitter_min_ns: i64,
+    pub jitter_max_ns: i64,
+}
+
+/// All statistics of a running controller.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct HapStats {
+    pub period_us: u32,
+    pub wakeup: TimingStat,
+    pub exec: TimingStat,
+    pub jitter: PeriodJitter,
+    pub counters: Counters,
+}
+
+impl HapStats {
+    pub const fn new(period_us: u32) -> Self {
+        HapStats {
+            period_us,
+            wakeup: TimingStat::new(),
+            exec: TimingStat::new(),
+            jitter: PeriodJitter::new((period_us as u64) * 1_000),
+            counters: Counters {
+                cycles: 0,
+                misses: 0,
+                max_consecutive_misses: 0,
+                degraded_cycles: 0,
+                fail_safe: 0,
+                frames_in: 0,
+                frames_out: 0,
+                frames_rejected: [0; DecodeError::COUNT],
+                answers_dropped: 0,
+                vpr_extrapolated: 0,
+            },
+        }
+    }
+
+    /// Account one supervisor verdict (CLOCK, once per period).
+    pub fn record_verdict(&mut self, v: &Verdict) {
+        let c = &mut self.counters;
+        match *v {
+            Verdict::Good { mode } => {
+                c.cycles = c.cycles.saturating_add(1);
+                if mode == crate::clock::Mode::Degraded {
+                    c.degraded_cycles = c.degraded_cycles.saturating_add(1);
+                }
+            }
+            Verdict::Miss { consecutive } => {
+                c.cycles = c.cycles.saturating_add(1);
+                c.misses = c.misses.saturating_add(1);
+                c.degraded_cycles = c.degraded_cycles.saturating_add(1);
+                c.max_consecutive_misses = c.max_consecutive_misses.max(u64::from(consecutive));
+            }
+            Verdict::FailSafe(cause) => {
+                if c.fail_safe == 0 {
+                    c.cycles = c.cycles.saturating_add(1);
+                    if cause == crate::clock::FailSafeCause::MissLimit {
+                        c.misses = c.misses.saturating_add(1);
+                        c.max_consecutive_misses = c
+                            .max_consecutive_misses
+                            .max(u64::from(crate::clock::MISS_LIMIT));
+                    }
+                }
+                c.fail_safe = 1;
+            }
+        }
+    }
+
+    /// Account a rejected frame.
+    pub fn record_reject(&mut self, e: DecodeError) {
+        if let Some(n) = self.counters.frames_rejected.get_mut(e.reason_index()) {
+            *n = n.saturating_add(1);
+        }
+    }
+
+    pub fn summary(&self) -> StatsSummary {
+        StatsSummary {
+            period_us: self.period_us,
+            counters: self.counters,
+            wakeup: self.wakeup.summary(),
+            exec: self.exec.summary(),
+            jitter: self.jitter.abs().summary(),
+            jitter_min_ns: self.jitter.min_ns(),
+            jitter_max_ns: self.jitter.max_ns(),
+        }
+    }
+
+    /// Render the text of `/dev/hap_stats` into `out`; see [`render_summary`].
+    pub fn render(&self, out: &mut [u8]) -> Rendered {
+        render_summary(&self.summary(), out)
+    }
+}
+
+/// A `core::fmt::Write` into a byte slice; output past the end is dropped
+/// and `truncated` set.
+#[derive(Debug)]
+pub struct SliceWriter<'a> {
+    buf: &'a mut [u8],
+    pos: usize,
+    truncated: bool,
+}
+
+impl<'a> SliceWriter<'a> {
+    pub fn new(buf: &'a mut [u8]) -> Self {
+        SliceWriter {
+            buf,
+            pos: 0,
+            truncated: false,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.pos
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pos == 0
+    }
+
+    pub fn truncated(&self) -> bool {
+        self.truncated
+    }
+}
+
+impl Write for SliceWriter<'_> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        let room = self.buf.len().saturating_sub(self.pos);
+        let n = s.len().min(room);
+        let src = s.as_bytes().get(..n).unwrap_or(&[]);
+        if let Some(dst) = self.buf.get_mut(self.pos..self.pos.saturating_add(n)) {
+            dst.copy_from_slice(src);
+            self.pos = self.pos.saturating_add(n);
+        }
+        if n < s.len() {
+            self.truncated = true;
+            return Err(fmt::Error);
+        }
+        Ok(())
+    }
+}
+
+/// Outcome of a rendering.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Rendered {
+    /// Bytes written.
+    pub len: usize,
+    /// The buffer was too small (output cut at `len`).
+    pub truncated: bool,
+}
+
+fn write_timing(w: &mut SliceWriter<'_>, name: &str, t: &TimingSummary) -> fmt::Result {
+    writeln!(w, "{name}.count: {}", t.count)?;
+    writeln!(w, "{name}.min_ns: {}", t.min_ns)?;
+    writeln!(w, "{name}.avg_ns: {}", t.avg_ns)?;
+    writeln!(w, "{name}.max_ns: {}", t.max_ns)?;
+    writeln!(w, "{name}.p50_us: {}", t.p50_us)?;
+    writeln!(w, "{name}.p99_us: {}", t.p99_us)?;
+    writeln!(w, "{name}.p99_9_us: {}", t.p999_us)?;
+    writeln!(w, "{name}.overflow: {}", t.overflow)
+}
+
+fn write_all(w: &mut SliceWriter<'_>, s: &StatsSummary) -> fmt::Result {
+    let c = &s.counters;
+    writeln!(w, "# hapticctrl statistics (times: *_ns in ns, *_us in us; p*_us = {HIST_BUCKETS} means >= {HIST_BUCKETS} us)")?;
+    // cyclictest-style one-liners (comments: the key lines below are the API).
+    writeln!(
+        w,
+        "# T: 0 (servo) I:{} C:{} Min:{} Avg:{} Max:{} (wakeup, us)",
+        s.period_us,
+        s.wakeup.count,
+        s.wakeup.min_ns / 1000,
+        s.wakeup.avg_ns / 1000,
+        s.wakeup.max_ns / 1000
+    )?;
+    writeln!(w, "version: {TEXT_VERSION}")?;
+    writeln!(w, "period_us: {}", s.period_us)?;
+    writeln!(w, "cycles: {}", c.cycles)?;
+    writeln!(w, "misses: {}", c.misses)?;
+    writeln!(w, "max_consecutive_misses: {}", c.max_consecutive_misses)?;
+    writeln!(w, "degraded_cycles: {}", c.degraded_cycles)?;
+    writeln!(w, "fail_safe: {}", c.fail_safe)?;
+    writeln!(w, "frames_in: {}", c.frames_in)?;
+    writeln!(w, "frames_out: {}", c.frames_out)?;
+    writeln!(w, "frames_rejected: {}", c.rejected_total())?;
+    for (name, n) in REASON_NAMES.iter().zip(c.frames_rejected.iter()) {
+        writeln!(w, "rejected.{name}: {n}")?;
+    }
+    writeln!(w, "answers_dropped: {}", c.answers_dropped)?;
+    writeln!(w, "vpr_extrapolated: {}", c.vpr_extrapolated)?;
+    write_timing(w, "wakeup", &s.wakeup)?;
+    write_timing(w, "exec", &s.exec)?;
+    write_timing(w, "jitter", &s.jitter)?;
+    writeln!(w, "jitter.signed_min_ns: {}", s.jitter_min_ns)?;
+    writeln!(w, "jitter.signed_max_ns: {}", s.jitter_max_ns)
+}
+
+/// Render `s` as `key: value` lines (≈1.4 KB; `RENDER_MAX` always fits).
+pub fn render_summary(s: &StatsSummary, out: &mut [u8]) -> Rendered {
+    let mut w = SliceWriter::new(out);
+    let _ = write_all(&mut w, s);
+    Rendered {
+        len: w.len(),
+        truncated: w.truncated(),
+    }
+}
+
+/// Why the text could not be parsed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ParseErrorKind {
+    /// A non-comment line without `": "`.
+    NoColon,
+    /// A value that is not a decimal integer of the field's type.
+    BadNumber,
+    /// `version:` missing or not `TEXT_VERSION`.
+    BadVersion,
+}
+
+/// Parse error with its 1-based line number (0: whole text).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ParseError {
+    pub line: usize,
+    pub kind: ParseErrorKind,
+}
+
+fn set_timing(t: &mut TimingSummary, field: &str, v: &str) -> Result<bool, ParseErrorKind> {
+    let u = || v.parse::<u64>().map_err(|_| ParseErrorKind::BadNumber);
+    let u32v = || v.parse::<u32>().map_err(|_| ParseErrorKind::BadNumber);
+    match field {
+        "count" => t.count = u()?,
+        "min_ns" => t.min_ns = u()?,
+        "avg_ns" => t.avg_ns = u()?,
+        "max_ns" => t.max_ns = u()?,
+        "p50_us" => t.p50_us = u32v()?,
+        "p99_us" => t.p99_us = u32v()?,
+        "p99_9_us" => t.p999_us = u32v()?,
+        "overflow" => t.overflow = u()?,
+        _ => return Ok(false),
+    }
+    Ok(true)
+}
+
+fn set_field(s: &mut StatsSummary, key: &str, v: &str) -> Result<(), ParseErrorKind> {
+    let u = || v.parse::<u64>().map_err(|_| ParseErrorKind::BadNumber);
+    let i = || v.parse::<i64>().map_err(|_| ParseErrorKind::BadNumber);
+    let c = &mut s.counters;
+    match key {
+        "version" => {
+            if u()? != TEXT_VERSION {
+                return Err(ParseErrorKind::BadVersion);
+            }
+        }
+        "period_us" => s.period_us = v.parse::<u32>().map_err(|_| ParseErrorKind::BadNumber)?,
+        "cycles" => c.cycles = u()?,
+        "misses" => c.misses = u()?,
+        "max_consecutive_misses" => c.max_consecutive_misses = u()?,
+        "degraded_cycles" => c.degraded_cycles = u()?,
+        "fail_safe" => c.fail_safe = u()?,
+        "frames_in" => c.frames_in = u()?,
+        "frames_out" => c.frames_out = u()?,
+        "frames_rejected" => {
+            u()?; // derived: the sum of the rejected.* lines
+        }
+        "answers_dropped" => c.answers_dropped = u()?,
+        "vpr_extrapolated" => c.vpr_extrapolated = u()?,
+        "jitter.signed_min_ns" => s.jitter_min_ns = i()?,
+        "jitter.signed_max_ns" => s.jitter_max_ns = i()?,
+        _ => {
+            if let Some(reason) = key.strip_prefix("rejected.") {
+                if let Some(idx) = REASON_NAMES.iter().position(|n| *n == reason) {
+                    if let Some(slot) = c.frames_rejected.get_mut(idx) {
+                        *slot = u()?;
+                    }
+                }
+            } else if let Some((series, field)) = key.split_once('.') {
+                let t = match series {
+                    "wakeup" => &mut s.wakeup,
+                    "exec" => &mut s.exec,
+                    "jitter" => &mut s.jitter,
+                    _ => return Ok(()),
+                };
+                set_timing(t, field, v)?;
+            }
+            // Unknown keys are ignored (newer kernels may add lines).
+        }
+    }
+    Ok(())
+}
+
+/// Parse the text [`render_summary`] produces. Unknown keys are ignored;
+/// missing keys keep their default (0); `version: 1` is required.
+pub fn parse_summary(text: &str) -> Result<StatsSummary, ParseError> {
+    let mut s = StatsSummary::default();
+    let mut seen_version = false;
+    for (n, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let err = |kind| ParseError {
+            line: n.saturating_add(1),
+            kind,
+        };
+        let (key, value) = line.split_once(':').ok_or(err(ParseErrorKind::NoColon))?;
+        let (key, value) = (key.trim(), value.trim());
+        if key == "version" {
+            seen_version = true;
+        }
+        set_field(&mut s, key, value).map_err(err)?;
+    }
+    if !seen_version {
+        return Err(ParseError {
+            line: 0,
+            kind: ParseErrorKind::BadVersion,
+        });
+    }
+    Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::{FailSafeCause, Mode};
+
+    fn reference_quantile(sorted_us: &[u64], num: u64, den: u64) -> u64 {
+        let n = sorted_us.len() as u64;
+        let rank = ((n * num).div_ceil(den)).max(1);
+        sorted_us[(rank - 1) as usize].min(HIST_BUCKETS as u64)
+    }
+
+    #[test]
+    fn quantiles_match_sorted_reference() {
+        let mut seed = 0x1234_5678_9abc_def0u64;
+        for len in [1usize, 2, 3, 10, 999, 1000, 1001, 12345] {
+            let mut t = TimingStat::new();
+            let mut v = Vec::new();
+            for _ in 0..len {
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                let ns = seed % 1_300_000; // some land in the overflow
+                t.record_ns(ns);
+                v.push(ns);
+            }
+            let mut us: Vec<u64> = v.iter().map(|x| x / 1000).collect();
+            us.sort_unstable();
+            for (num, den) in [(P50, PPM), (P99, PPM), (P999, PPM), (1, 1), (0, 1), (1, 3)] {
+                assert_eq!(
+                    u64::from(t.histogram().quantile_us(num, den)),
+                    reference_quantile(&us, num, den),
+                    "len={len} q={num}/{den}"
+                );
+            }
+            assert_eq!(t.min_ns(), *v.iter().min().unwrap());
+            assert_eq!(t.max_ns(), *v.iter().max().unwrap());
+            assert_eq!(t.avg_ns(), v.iter().sum::<u64>() / len as u64);
+            assert_eq!(
+                t.histogram().overflow(),
+                v.iter().filter(|&&x| x >= 1_000_000).count() as u64
+            );
+        }
+    }
+
+    #[test]
+    fn empty_stats() {
+        let t = TimingStat::new();
+        assert_eq!(t.summary(), TimingSummary::default());
+    }
+
+    #[test]
+    fn jitter_signed_and_abs() {
+        let mut j = PeriodJitter::new(1_000_000);
+        assert_eq!(j.top(5_000_000), None);
+        assert_eq!(j.top(6_000_100), Some(100));
+        assert_eq!(j.top(6_999_900), Some(-200));
+        assert_eq!(j.top(8_000_000), Some(100));
+        assert_eq!(j.min_ns(), -200);
+        assert_eq!(j.max_ns(), 100);
+        assert_eq!(j.abs().max_ns(), 200);
+        assert_eq!(j.abs().count(), 3);
+    }
+
+    fn sample_stats() -> HapStats {
+        let mut s = HapStats::new(1000);
+        for i in 0..5000u64 {
+            s.wakeup.record_ns(1_000 + (i * 37) % 9_000);
+            s.exec
+                .record_ns(3_000 + (i * 53) % 40_000 + if i % 997 == 0 { 2_000_000 } else { 0 });
+            s.jitter.top(i * 1_000_000 + (i * 7919) % 3_000);
+        }
+        s.record_verdict(&Verdict::Good { mode: Mode::Normal });
+        s.record_verdict(&Verdict::Miss { consecutive: 1 });
+        s.record_verdict(&Verdict::Miss { consecutive: 2 });
+        s.record_verdict(&Verdict::Good {
+            mode: Mode::Degraded,
+        });
+        s.record_verdict(&Verdict::FailSafe(FailSafeCause::StopRequested));
+        s.record_reject(DecodeError::BadCrc);
+        s.record_reject(DecodeError::BadCrc);
+        s.record_reject(DecodeError::BadBool);
+        s.counters.frames_in = 123;
+        s.counters.frames_out = 4567;
+        s.counters.answers_dropped = 3;
+        s.counters.vpr_extrapolated = 8;
+        s
+    }
+
+    #[test]
+    fn render_parse_round_trip() {
+        let s = sample_stats();
+        let mut buf = [0u8; RENDER_MAX];
+        let r = s.render(&mut buf);
+        assert!(!r.truncated);
+        let text = core::str::from_utf8(&buf[..r.len]).unwrap();
+        assert!(text.contains("rejected.bad_crc: 2\n"), "{text}");
+        assert!(text.contains("frames_rejected: 3\n"));
+        assert!(text.contains("misses: 2\n"));
+        assert_eq!(parse_summary(text), Ok(s.summary()));
+        assert!(r.len < 2048, "{}", r.len);
+    }
+
+    #[test]
+    fn render_truncates_without_panic() {
+        let s = sample_stats();
+        for n in [0usize, 1, 10, 100, 1000] {
+            let mut buf = vec![0u8; n];
+            let r = s.render(&mut buf);
+            assert!(r.truncated);
+            assert_eq!(r.len, n);
+        }
+    }
+
+    #[test]
+    fn parse_errors() {
+        assert_eq!(
+            parse_summary("cycles: 1\n").unwrap_err().kind,
+            ParseErrorKind::BadVersion
+        );
+        assert_eq!(
+            parse_summary("version: 1\ncycles 1\n"),
+            Err(ParseError {
+                line: 2,
+                kind: ParseErrorKind::NoColon
+            })
+        );
+        assert_eq!(
+            parse_summary("version: 1\ncycles: -1\n"),
+            Err(ParseError {
+                line: 2,
+                kind: ParseErrorKind::BadNumber
+            })
+        );
+        assert_eq!(
+            parse_summary("version: 2\n"),
+            Err(ParseError {
+                line: 1,
+                kind: ParseErrorKind::BadVersion
+            })
+        );
+        assert!(parse_summary("version: 1\nfuture.key: x\n").is_ok());
+    }
+
+    #[test]
+    fn struct_size() {
+        assert!(core::mem::size_of::<HapStats>() < 13 * 1024);
+    }
+}
