@@ -10,11 +10,18 @@
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod arm;
 pub mod clock;
 pub mod config;
+pub mod control;
 pub mod crc;
+pub mod effort;
 pub mod fixed;
+pub mod io;
 pub mod protocol;
+pub mod servo;
+pub mod simulator;
+pub mod state_model;
 pub mod stats;
 pub mod vp;
 pub mod xdr;

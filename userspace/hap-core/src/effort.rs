@@ -1,0 +1,458 @@
+//! The user's effort on the handle: a pre-computed sequence of keyframes
+//! (parsed without floats, allocation or panics) or a live value.
+//!
+//! # Text format (`.eff`, version 1)
+//!
+//! ```text
+//! # comment lines start with '#'; blank lines are ignored; a '#' ends a line
+//! # t_ms   fx    fy   fz    tx   ty   tz   [deadman [button1 [button2]]]
+//! 0        0     0    0     0    0    0    1
+//! 500      2.5   0   -1.25  0    0    0.05 1 0 0
+//! 1500     0     0    0     0    0    0
+//! ```
+//!
+//! * One keyframe per line, fields separated by spaces or tabs; `\r` is ignored.
+//! * `t_ms`: time in milliseconds since the sequence start, unsigned integer
+//!   ≤ 4 000 000 000, strictly increasing from line to line.
+//! * `fx fy fz` (N) and `tx ty tz` (N·m): the wrench the user applies to the
+//!   handle, in the arm base frame, force at the handle centre. Decimal
+//!   numbers `[+|-]digits[.digits]` (no exponent), |value| ≤ 1000; stored in
+//!   milli-units (mN, mN·m), rounded half away from zero at the 4th decimal.
+//! * Optional flags, each `0` or `1`: `deadman` (user holds the handle,
+//!   default 1), `button1` (indexing button, default 0), `button2` (default 0).
+//! * Between keyframes the wrench is interpolated linearly; flags hold the
+//!   value of the keyframe at or before the time. Before the first keyframe
+//!   the first keyframe's values apply, after the last one the last's.
+//!
+//! Errors carry the 1-based line and byte column of the offending field (for
+//! `Empty`, the line after the last one, column 1).
+
+use crate::fixed::{Fx, Vec3, Wrench};
+
+/// Keyframe storage of an [`EffortPlayer`].
+pub const EFFORT_CAPACITY: usize = 128;
+/// Largest accepted |value| in the text format, in milli-units.
+pub const EFFORT_MAX_MILLI: i64 = 1_000_000;
+/// Largest accepted keyframe time, ms.
+pub const EFFORT_MAX_T_MS: u64 = 4_000_000_000;
+
+/// Keyframe flag: dead-man switch held.
+pub const FLAG_DEAD_MAN: u8 = 1 << 0;
+/// Keyframe flag: button 1 (indexing).
+pub const FLAG_BUTTON_1: u8 = 1 << 1;
+/// Keyframe flag: button 2.
+pub const FLAG_BUTTON_2: u8 = 1 << 2;
+
+/// One keyframe (32 bytes): time and wrench in milli-units.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EffortKeyframe {
+    pub t_ms: u32,
+    /// Force, mN, arm base frame.
+    pub force_mn: [i32; 3],
+    /// Torque, mN·m, arm base frame.
+    pub torque_mnm: [i32; 3],
+    /// `FLAG_*` bits.
+    pub flags: u8,
+}
+
+impl EffortKeyframe {
+    pub const ZERO: EffortKeyframe = EffortKeyframe {
+        t_ms: 0,
+        force_mn: [0; 3],
+        torque_mnm: [0; 3],
+        flags: 0,
+    };
+
+    fn milli(&self) -> [i32; 6] {
+        let [a, b, c] = self.force_mn;
+        let [d, e, f] = self.torque_mnm;
+        [a, b, c, d, e, f]
+    }
+}
+
+/// The user's action on the handle for one cycle.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EffortSample {
+    /// Wrench applied by the user at the handle, arm base frame (N, N·m).
+    pub wrench: Wrench,
+    /// The user holds the handle (dead-man switch).
+    pub dead_man: bool,
+    /// Bit 0: button 1 (indexing), bit 1: button 2.
+    pub buttons: u8,
+}
+
+impl EffortSample {
+    pub const NONE: EffortSample = EffortSample {
+        wrench: Wrench::ZERO,
+        dead_man: false,
+        buttons: 0,
+    };
+}
+
+/// What went wrong, see [`EffortParseError`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EffortErrorKind {
+    /// `t_ms` is not an unsigned integer.
+    BadTime,
+    /// `t_ms` > 4 000 000 000.
+    TimeOutOfRange,
+    /// `t_ms` not strictly greater than the previous keyframe's.
+    TimeNotIncreasing,
+    /// A wrench field is not a decimal number.
+    BadNumber,
+    /// |value| > 1000.
+    ValueOutOfRange,
+    /// Fewer than the 7 mandatory fields.
+    MissingField,
+    /// More than 10 fields.
+    TooManyFields,
+    /// A flag is not `0` or `1`.
+    BadFlag,
+    /// More keyframes than the output slice holds.
+    TooManyKeyframes,
+    /// No keyframe at all.
+    Empty,
+}
+
+/// A parse error with its 1-based line and byte column.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EffortParseError {
+    pub line: u32,
+    pub column: u32,
+    pub kind: EffortErrorKind,
+}
+
+fn is_space(b: u8) -> bool {
+    b == b' ' || b == b'\t' || b == b'\r'
+}
+
+/// Parse an unsigned integer time in ms.
+fn parse_time(f: &[u8]) -> Result<u32, EffortErrorKind> {
+    if f.is_empty() {
+        return Err(EffortErrorKind::BadTime);
+    }
+    let mut v: u64 = 0;
+    for &b in f {
+        if !b.is_ascii_digit() {
+            return Err(EffortErrorKind::BadTime);
+        }
+        v = v.saturating_mul(10).saturating_add((b - b'0') as u64);
+    }
+    if v > EFFORT_MAX_T_MS {
+        return Err(EffortErrorKind::TimeOutOfRange);
+    }
+    Ok(v as u32)
+}
+
+/// Parse `[+|-]digits[.digits]` into milli-units.
+pub fn parse_milli(f: &[u8]) -> Result<i32, EffortErrorKind> {
+    let (neg, rest) = match f.split_first() {
+        Some((b'-', r)) => (true, r),
+        Some((b'+', r)) => (false, r),
+        Some(_) => (false, f),
+        None => return Err(EffortErrorKind::BadNumber),
+    };
+    let mut int: i64 = 0;
+    let mut frac: i64 = 0;
+    let mut frac_digits = 0u32;
+    let mut round_up = false;
+    let mut seen_dot = false;
+    let mut digits = 0u32;
+    for &b in rest {
+        if b == b'.' {
+            if seen_dot {
+                return Err(EffortErrorKind::BadNumber);
+            }
+            seen_dot = true;
+        } else if b.is_ascii_digit() {
+            digits += 1;
+            let d = (b - b'0') as i64;
+            if !seen_dot {
+                int = int.saturating_mul(10).saturating_add(d);
+            } else if frac_digits < 3 {
+                frac = frac * 10 + d;
+                frac_digits += 1;
+            } else if frac_digits == 3 {
+                round_up = d >= 5;
+                frac_digits += 1;
+            }
+        } else {
+            return Err(EffortErrorKind::BadNumber);
+        }
+    }
+    if digits == 0 {
+        return Err(EffortErrorKind::BadNumber);
+    }
+    while frac_digits < 3 {
+        frac *= 10;
+        frac_digits += 1;
+    }
+    let mut m = int.saturating_mul(1000).saturating_add(frac);
+    if round_up {
+        m = m.saturating_add(1);
+    }
+    if m > EFFORT_MAX_MILLI {
+        return Err(EffortErrorKind::ValueOutOfRange);
+    }
+    // |m| <= 1e6 fits in i32.
+    Ok(if neg { -(m as i32) } else { m as i32 })
+}
+
+fn parse_flag(f: &[u8]) -> Result<bool, EffortErrorKind> {
+    match f {
+        b"0" => Ok(false),
+        b"1" => Ok(true),
+        _ => Err(EffortErrorKind::BadFlag),
+    }
+}
+
+/// Parse an effort sequence into `out`; returns the number of keyframes.
+pub fn parse_effort_sequence(
+    text: &[u8],
+    out: &mut [EffortKeyframe],
+) -> Result<usize, EffortParseError> {
+    let mut n = 0usize;
+    let mut last_line = 0u32;
+    let mut prev_t: Option<u32> = None;
+    for (idx, raw_line) in text.split(|&b| b == b'\n').enumerate() {
+        let line_no = u32::try_from(idx).unwrap_or(u32::MAX - 1).saturating_add(1);
+        last_line = line_no;
+        // Strip a trailing comment.
+        let line = match raw_line.iter().position(|&b| b == b'#') {
+            Some(p) => raw_line.get(..p).unwrap_or(raw_line),
+            None => raw_line,
+        };
+        let err = |col: usize, kind| EffortParseError {
+            line: line_no,
+            column: u32::try_from(col).unwrap_or(u32::MAX - 1).saturating_add(1),
+            kind,
+        };
+        let mut kf = EffortKeyframe {
+            flags: FLAG_DEAD_MAN,
+            ..EffortKeyframe::ZERO
+        };
+        let mut field = 0usize;
+        let mut pos = 0usize;
+        let len = line.len();
+        let mut milli = [0i32; 6];
+        while pos < len {
+            // skip blanks
+            while line.get(pos).is_some_and(|&b| is_space(b)) {
+                pos += 1;
+            }
+            if pos >= len {
+                break;
+            }
+            let start = pos;
+            while line.get(pos).is_some_and(|&b| !is_space(b)) {
+                pos += 1;
+            }
+            let f = line.get(start..pos).unwrap_or(&[]);
+            match field {
+                0 => {
+                    let t = parse_time(f).map_err(|k| err(start, k))?;
+                    if prev_t.is_some_and(|p| t <= p) {
+                        return Err(err(start, EffortErrorKind::TimeNotIncreasing));
+                    }
+                    kf.t_ms = t;
+                }
+                1..=6 => {
+                    let v = parse_milli(f).map_err(|k| err(start, k))?;
+                    if let Some(slot) = milli.get_mut(field - 1) {
+                        *slot = v;
+                    }
+                }
+                7..=9 => {
+                    let bit = match field {
+                        7 => FLAG_DEAD_MAN,
+                        8 => FLAG_BUTTON_1,
+                        _ => FLAG_BUTTON_2,
+                    };
+                    if parse_flag(f).map_err(|k| err(start, k))? {
+                        kf.flags |= bit;
+                    } else {
+                        kf.flags &= !bit;
+                    }
+                }
+                _ => return Err(err(start, EffortErrorKind::TooManyFields)),
+            }
+            field += 1;
+        }
+        if field == 0 {
+            continue;
+        }
+        if field < 7 {
+            // Column just past the end of the line content.
+            let end = line
+                .iter()
+                .rposition(|&b| !is_space(b))
+                .map_or(0, |p| p + 1);
+            return Err(err(end, EffortErrorKind::MissingField));
+        }
+        let [a, b, c, d, e, f] = milli;
+        kf.force_mn = [a, b, c];
+        kf.torque_mnm = [d, e, f];
+        match out.get_mut(n) {
+            Some(slot) => *slot = kf,
+            None => return Err(err(0, EffortErrorKind::TooManyKeyframes)),
+        }
+        n += 1;
+        prev_t = Some(kf.t_ms);
+    }
+    if n == 0 {
+        return Err(EffortParseError {
+            line: last_line.saturating_add(1),
+            column: 1,
+            kind: EffortErrorKind::Empty,
+        });
+    }
+    Ok(n)
+}
+
+/// Plays a keyframe sequence (fixed capacity, no allocation) and an optional
+/// live override.
+#[derive(Clone, Debug)]
+pub struct EffortPlayer {
+    keys: [EffortKeyframe; EFFORT_CAPACITY],
+    len: usize,
+    cursor: usize,
+    live: Option<EffortSample>,
+}
+
+impl Default for EffortPlayer {
+    fn default() -> Self {
+        EffortPlayer::new()
+    }
+}
+
+impl EffortPlayer {
+    pub const fn new() -> EffortPlayer {
+        EffortPlayer {
+            keys: [EffortKeyframe::ZERO; EFFORT_CAPACITY],
+            len: 0,
+            cursor: 0,
+            live: None,
+        }
+    }
+
+    /// Replace the sequence by `keys` (at most `EFFORT_CAPACITY` taken; times
+    /// should increase). Returns the number stored.
+    pub fn load(&mut self, keys: &[EffortKeyframe]) -> usize {
+        let mut n = 0;
+        for (d, s) in self.keys.iter_mut().zip(keys.iter()) {
+            *d = *s;
+            n += 1;
+        }
+        self.len = n;
+        self.cursor = 0;
+        n
+    }
+
+    /// Parse `text` straight into the player's storage.
+    pub fn load_text(&mut self, text: &[u8]) -> Result<usize, EffortParseError> {
+        let r = parse_effort_sequence(text, &mut self.keys);
+        self.len = *r.as_ref().unwrap_or(&0);
+        self.cursor = 0;
+        r
+    }
+
+    pub fn clear(&mut self) {
+        self.len = 0;
+        self.cursor = 0;
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub fn keyframes(&self) -> &[EffortKeyframe] {
+        self.keys.get(..self.len).unwrap_or(&[])
+    }
+
+    /// Set or clear the live effort (a device write); it overrides the sequence.
+    pub fn set_live(&mut self, live: Option<EffortSample>) {
+        self.live = live;
+    }
+
+    pub fn live(&self) -> Option<EffortSample> {
+        self.live
+    }
+
+    /// The effort at `t_us` µs since the sequence start (live value first;
+    /// no sequence → nobody at the handle).
+    pub fn sample(&mut self, t_us: u64) -> EffortSample {
+        if let Some(l) = self.live {
+            return l;
+        }
+        let keys = self.keys.get(..self.len).unwrap_or(&[]);
+        let (first, last) = match (keys.first(), keys.last()) {
+            (Some(f), Some(l)) => (f, l),
+            _ => return EffortSample::NONE,
+        };
+        let t_ms_floor = t_us / 1000;
+        if t_ms_floor < first.t_ms as u64 {
+            return sample_of(first);
+        }
+        if t_ms_floor >= last.t_ms as u64 {
+            return sample_of(last);
+        }
+        // Move the cursor to the segment [k, k+1] containing t (monotone
+        // playback is O(1) amortised; going back restarts the search).
+        if keys
+            .get(self.cursor)
+            .is_none_or(|k| (k.t_ms as u64) * 1000 > t_us)
+        {
+            self.cursor = 0;
+        }
+        while keys
+            .get(self.cursor + 1)
+            .is_some_and(|k| (k.t_ms as u64) * 1000 <= t_us)
+        {
+            self.cursor += 1;
+        }
+        let (a, b) = match (keys.get(self.cursor), keys.get(self.cursor + 1)) {
+            (Some(a), Some(b)) => (a, b),
+            (Some(a), None) => return sample_of(a),
+            _ => return EffortSample::NONE,
+        };
+        let t0 = (a.t_ms as u64) * 1000;
+        let t1 = (b.t_ms as u64) * 1000;
+        let num = t_us.saturating_sub(t0).min(i64::MAX as u64) as i64;
+        let den = t1.saturating_sub(t0).min(i64::MAX as u64) as i64;
+        let frac = Fx::ratio(num, den);
+        let va = a.milli();
+        let vb = b.milli();
+        let mut v = [Fx::ZERO; 6];
+        for ((o, x), y) in v.iter_mut().zip(va.iter()).zip(vb.iter()) {
+            let fa = Fx::from_milli(*x as i64);
+            let fb = Fx::from_milli(*y as i64);
+            *o = fa.add_sat(frac.mul_sat(fb.sub_sat(fa)));
+        }
+        let [fx, fy, fz, tx, ty, tz] = v;
+        EffortSample {
+            wrench: Wrench {
+                force: Vec3::new(fx, fy, fz),
+                torque: Vec3::new(tx, ty, tz),
+            },
+            dead_man: a.flags & FLAG_DEAD_MAN != 0,
+            buttons: (a.flags >> 1) & 3,
+        }
+    }
+}
+
+fn sample_of(k: &EffortKeyframe) -> EffortSample {
+    let m = k.milli();
+    let [fx, fy, fz, tx, ty, tz] = m.map(|x| Fx::from_milli(x as i64));
+    EffortSample {
+        wrench: Wrench {
+            force: Vec3::new(fx, fy, fz),
+            torque: Vec3::new(tx, ty, tz),
+        },
+        dead_man: k.flags & FLAG_DEAD_MAN != 0,
+        buttons: (k.flags >> 1) & 3,
+    }
+}

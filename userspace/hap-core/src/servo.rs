@@ -1,0 +1,307 @@
+//! hap_servo: one servo step, the same function for the kernel's SERVO thread
+//! and the host tests (bit-for-bit identical: integer arithmetic only).
+//!
+//! `Servo::step` runs, in order: power request → user effort for this cycle →
+//! `get_measures` → `build_logical_state` → `build_physical_state` →
+//! `cartesian_control` → `send_commands` (inhibited unless powered) →
+//! `simulate_arm` (one period) → fill VP and the `LogRecord`.
+//!
+//! `ServoMode::Main` is the normal path. `ServoMode::Degraded` is the spec's
+//! auxiliary SERVO path: cheaper and safe — no coupling to the client object,
+//! gravity compensation plus joint damping only, `status::DEGRADED` set.
+//!
+//! Initial calibration: the simulated arm starts at rest in
+//! [`crate::arm::REST_Q`] (shoulder on its stop, forearm and wrist hanging),
+//! motionless, unpowered, motor commands inhibited.
+//!
+//! Size: about 6 KB (the 128-keyframe effort storage is 4 KB); `Servo::new`
+//! is `const`, so the kernel can keep it in a static or a boxed allocation and
+//! call `init` once (or let the first `step` do it).
+
+use crate::config::ServoConfig;
+use crate::control::{cartesian_control, Controller};
+use crate::effort::{EffortKeyframe, EffortParseError, EffortPlayer, EffortSample};
+use crate::fixed::{Fx, JOINTS_ZERO};
+use crate::io::Io;
+use crate::simulator::{LogRecord, Simulator};
+use crate::state_model::{build_logical_state, build_physical_state};
+use crate::vp::{alarm, status, VpReceived, VpSent};
+
+/// Which SERVO path runs this cycle.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ServoMode {
+    /// Normal behaviour.
+    #[default]
+    Main,
+    /// Auxiliary (degraded) behaviour after a deadline miss.
+    Degraded,
+}
+
+/// A power request from the (simulated) arm's power button.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PowerRequest {
+    /// Keep the current state.
+    #[default]
+    None,
+    /// Power on the arm supply and enable motor commands.
+    On,
+    /// Inhibit motor commands and power off.
+    Off,
+}
+
+/// Per-cycle inputs from outside the servo (device writes in the kernel).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ServoInputs {
+    pub power_request: PowerRequest,
+    /// A live user effort overriding the pre-computed sequence this cycle.
+    pub live_effort: Option<EffortSample>,
+}
+
+/// LogRecord flag bits.
+pub mod log_flags {
+    pub const POWER: u16 = 1 << 0;
+    pub const MOTORS_ENABLED: u16 = 1 << 1;
+    pub const DEAD_MAN: u16 = 1 << 2;
+    pub const BUTTON_1: u16 = 1 << 3;
+    pub const BUTTON_2: u16 = 1 << 4;
+    pub const DEGRADED: u16 = 1 << 5;
+    pub const COUPLED: u16 = 1 << 6;
+}
+
+/// Everything the servo loop owns.
+#[derive(Clone, Debug)]
+pub struct Servo {
+    period_ns: u32,
+    period: Fx,
+    initialized: bool,
+    sim: Simulator,
+    io: Io,
+    ctrl: Controller,
+    effort: EffortPlayer,
+    cycle: u64,
+    alarms: u32,
+    vp: VpSent,
+    log: LogRecord,
+}
+
+const VP_ZERO: VpSent = VpSent {
+    handle_pose: crate::fixed::Pose::IDENTITY,
+    handle_twist: crate::fixed::Twist::ZERO,
+    coupling_wrench: crate::fixed::Wrench::ZERO,
+    status: 0,
+    alarms: 0,
+    cycle: 0,
+    vpr_seq: 0,
+};
+
+impl Servo {
+    /// A servo for a period of `period_ns` (1 ms: 1_000_000), not yet
+    /// initialised (the first `step` calls `init`).
+    pub const fn new(period_ns: u32) -> Servo {
+        Servo {
+            period_ns,
+            period: Fx::from_ns(period_ns as u64),
+            initialized: false,
+            sim: Simulator::new(period_ns),
+            io: Io::new(),
+            ctrl: Controller::new(),
+            effort: EffortPlayer::new(),
+            cycle: 0,
+            alarms: 0,
+            vp: VP_ZERO,
+            log: LogRecord::ZERO,
+        }
+    }
+
+    /// Initialise: calibrate the simulated arm to its rest configuration,
+    /// controller filters and gains, motor commands inhibited, cycle 0. The
+    /// loaded effort sequence is kept (playback restarts).
+    pub fn init(&mut self) {
+        self.sim = Simulator::new(self.period_ns);
+        self.sim.calibrate();
+        self.io.reset();
+        self.ctrl.init(self.period);
+        self.cycle = 0;
+        self.alarms = 0;
+        self.vp = VP_ZERO;
+        self.log = LogRecord::ZERO;
+        let keep = self.effort.live();
+        self.effort.set_live(keep);
+        self.initialized = true;
+    }
+
+    pub fn period_ns(&self) -> u32 {
+        self.period_ns
+    }
+
+    pub fn cycle(&self) -> u64 {
+        self.cycle
+    }
+
+    /// The answer of the last step.
+    pub fn vp(&self) -> &VpSent {
+        &self.vp
+    }
+
+    /// The log record of the last step.
+    pub fn log_record(&self) -> &LogRecord {
+        &self.log
+    }
+
+    pub fn simulator(&self) -> &Simulator {
+        &self.sim
+    }
+
+    pub fn simulator_mut(&mut self) -> &mut Simulator {
+        &mut self.sim
+    }
+
+    pub fn controller(&self) -> &Controller {
+        &self.ctrl
+    }
+
+    pub fn controller_mut(&mut self) -> &mut Controller {
+        &mut self.ctrl
+    }
+
+    pub fn io(&self) -> &Io {
+        &self.io
+    }
+
+    pub fn effort(&self) -> &EffortPlayer {
+        &self.effort
+    }
+
+    pub fn effort_mut(&mut self) -> &mut EffortPlayer {
+        &mut self.effort
+    }
+
+    /// Load a pre-computed effort sequence (text format, see `effort`).
+    pub fn load_effort_text(&mut self, text: &[u8]) -> Result<usize, EffortParseError> {
+        self.effort.load_text(text)
+    }
+
+    /// Load pre-parsed keyframes (at most `EFFORT_CAPACITY`).
+    pub fn load_effort(&mut self, keys: &[EffortKeyframe]) -> usize {
+        self.effort.load(keys)
+    }
+
+    /// Set/clear a persistent live effort (overrides the sequence).
+    pub fn set_live_effort(&mut self, e: Option<EffortSample>) {
+        self.effort.set_live(e);
+    }
+
+    /// Fail-safe action 1: inhibit motor commands (latched until `init`).
+    pub fn inhibit_motors(&mut self) {
+        self.io.fail_safe_inhibit(&mut self.sim);
+        self.alarms |= alarm::FAIL_SAFE;
+    }
+
+    /// Fail-safe action 2: power off the simulated arm supply.
+    pub fn power_off(&mut self) {
+        self.io.power_off(&mut self.sim);
+    }
+
+    /// Record a deadline miss in the alarm bits (the supervisor's decision).
+    pub fn note_deadline_miss(&mut self) {
+        self.alarms |= alarm::DEADLINE_MISS;
+    }
+
+    /// Latched alarms.
+    pub fn alarms(&self) -> u32 {
+        self.alarms
+    }
+
+    /// Microseconds since init at the start of the current cycle.
+    pub fn time_us(&self) -> u64 {
+        self.cycle.saturating_mul(self.period_ns as u64) / 1000
+    }
+
+    /// One servo step. Returns the answer (VP) for the client.
+    pub fn step(
+        &mut self,
+        inputs: &ServoInputs,
+        config: &ServoConfig,
+        vpr: &VpReceived,
+        mode: ServoMode,
+    ) -> &VpSent {
+        if !self.initialized {
+            self.init();
+        }
+        // Power request (the arm's power button).
+        match inputs.power_request {
+            PowerRequest::None => {}
+            PowerRequest::On => {
+                let was = self.sim.powered();
+                if self.io.power_request(&mut self.sim, true) && !was {
+                    // A power cycle clears the latched alarms.
+                    self.alarms &= alarm::FAIL_SAFE;
+                }
+            }
+            PowerRequest::Off => {
+                self.io.power_request(&mut self.sim, false);
+            }
+        }
+        // The user's effort for this period.
+        let t_us = self.time_us();
+        let user = match inputs.live_effort {
+            Some(e) => e,
+            None => self.effort.sample(t_us),
+        };
+        self.sim.set_user_effort(&user);
+
+        let m = self.io.get_measures(&mut self.sim);
+        let ls = build_logical_state(&m, &self.io, config, mode, self.alarms);
+        let ps = build_physical_state(&m);
+        let out = cartesian_control(&mut self.ctrl, &ls, &ps, config, vpr);
+        let applied = self.io.send_commands(&mut self.sim, &out.joint_torques);
+        self.sim.simulate_arm();
+
+        self.alarms = ls.alarms | out.alarms;
+        let st = ls.status | out.status;
+        self.vp = VpSent {
+            handle_pose: out.handle_pose_client,
+            handle_twist: out.handle_twist_client,
+            coupling_wrench: out.coupling_wrench,
+            status: st,
+            alarms: self.alarms,
+            cycle: self.cycle,
+            vpr_seq: vpr.seq,
+        };
+        let mut flags = 0u16;
+        for (bit, lf) in [
+            (status::POWER_ON, log_flags::POWER),
+            (status::MOTORS_ENABLED, log_flags::MOTORS_ENABLED),
+            (status::DEAD_MAN, log_flags::DEAD_MAN),
+            (status::BUTTON_1, log_flags::BUTTON_1),
+            (status::BUTTON_2, log_flags::BUTTON_2),
+            (status::DEGRADED, log_flags::DEGRADED),
+            (status::COUPLED, log_flags::COUPLED),
+        ] {
+            if st & bit != 0 {
+                flags |= lf;
+            }
+        }
+        let o = ps.handle.orientation;
+        self.log = LogRecord {
+            flags,
+            cycle: self.cycle,
+            q: ps.q,
+            qd: ps.qd,
+            handle_position: ps.handle.position,
+            handle_orientation: [o.x, o.y, o.z, o.w],
+            motor_torque: if self.sim.powered() {
+                applied
+            } else {
+                JOINTS_ZERO
+            },
+            user_wrench: user.wrench.to_array(),
+            status: st,
+            alarms: self.alarms,
+            po_energy: out.po_energy,
+            coupling_force: out.handle_wrench.force.norm(),
+        };
+        self.cycle = self.cycle.wrapping_add(1);
+        &self.vp
+    }
+}

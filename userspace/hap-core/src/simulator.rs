@@ -1,0 +1,378 @@
+//! hap_simulator: the simulated Virtuose arm (`simulate_arm`) and the binary
+//! position-log record it produces each cycle.
+//!
+//! One call integrates the joint dynamics of [`crate::arm`] over one servo
+//! period with `SUBSTEPS` semi-implicit Euler sub-steps:
+//!
+//! ```text
+//! τ = τ_motor (0 when unpowered) + Jᵀ·w_user + τ_gravity          (once per period)
+//!     − b·q̇ − fc·sat(q̇/0.01) + τ_stop(q, q̇)                      (every sub-step)
+//! q̇ ← q̇ + dt·τ / I(q)      q ← q + dt·q̇                           (dt = period / SUBSTEPS)
+//! ```
+//!
+//! Kinematics, gravity, inertia and the Jacobian are evaluated once per period
+//! at the configuration the period starts from. The outputs are what the
+//! hardware gives: 6 encoder counts, 6 joint speeds (tachometers), the 6-axis
+//! force sensor (the user's wrench expressed in the handle frame), and the
+//! power / dead-man / button state.
+//!
+//! Power: the simulated arm supply is switched by [`Simulator::set_power`];
+//! unpowered, the motors produce no torque whatever is commanded, so the arm
+//! moves only under gravity, the user's effort and its stops; left alone it
+//! settles to [`crate::arm::REST_Q`] (shoulder on its stop, forearm hanging).
+
+use crate::arm::{self, Kinematics};
+use crate::effort::EffortSample;
+use crate::fixed::{Fx, Joints, Vec3, Wrench, JOINTS_ZERO};
+
+/// Integration sub-steps per servo period.
+pub const SUBSTEPS: u32 = 4;
+
+/// What the hardware returns (hap_io `get_measures`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Measures {
+    /// Joint encoder counts (see `arm::ENCODER_COUNTS_PER_RAD`).
+    pub encoders: [i32; 6],
+    /// Joint speeds from the tachometers, rad/s.
+    pub joint_speeds: Joints,
+    /// 6-axis force sensor: the user's wrench on the handle, handle frame.
+    pub force_sensor: Wrench,
+    /// Arm supply on.
+    pub power_on: bool,
+    /// Dead-man switch held.
+    pub dead_man: bool,
+    /// Bit 0: button 1, bit 1: button 2.
+    pub buttons: u8,
+    /// Some joint is in its end stop.
+    pub joint_limit: bool,
+}
+
+/// The simulated arm.
+#[derive(Clone, Debug)]
+pub struct Simulator {
+    /// Joint positions, rad.
+    pub q: Joints,
+    /// Joint speeds, rad/s.
+    pub qd: Joints,
+    powered: bool,
+    motor_torque: Joints,
+    period: Fx,
+    user: EffortSample,
+    kin: Kinematics,
+    kin_valid: bool,
+    joint_limit: bool,
+}
+
+impl Simulator {
+    /// An unpowered arm at rest, for a servo period of `period_ns`.
+    pub const fn new(period_ns: u32) -> Simulator {
+        Simulator {
+            q: arm::REST_Q,
+            qd: JOINTS_ZERO,
+            powered: false,
+            motor_torque: JOINTS_ZERO,
+            period: Fx::from_ns(period_ns as u64),
+            user: EffortSample::NONE,
+            kin: Kinematics::ZERO,
+            kin_valid: false,
+            joint_limit: false,
+        }
+    }
+
+    /// Initial calibration: put the arm at rest (`arm::REST_Q`), motionless.
+    pub fn calibrate(&mut self) {
+        self.set_state(&arm::REST_Q, &JOINTS_ZERO);
+    }
+
+    /// Place the arm (tests, scenario setup).
+    pub fn set_state(&mut self, q: &Joints, qd: &Joints) {
+        self.q = *q;
+        self.qd = *qd;
+        self.kin_valid = false;
+    }
+
+    pub fn period(&self) -> Fx {
+        self.period
+    }
+
+    /// Switch the arm supply; switching off also drops the motor command.
+    pub fn set_power(&mut self, on: bool) {
+        self.powered = on;
+        if !on {
+            self.motor_torque = JOINTS_ZERO;
+        }
+    }
+
+    pub fn powered(&self) -> bool {
+        self.powered
+    }
+
+    /// Latch motor torques for the next `simulate_arm` (clamped to the motor
+    /// limits; ignored while unpowered).
+    pub fn set_motor_torques(&mut self, tau: &Joints) {
+        if !self.powered {
+            self.motor_torque = JOINTS_ZERO;
+            return;
+        }
+        for ((m, t), lim) in self
+            .motor_torque
+            .iter_mut()
+            .zip(tau.iter())
+            .zip(arm::TAU_MAX.iter())
+        {
+            *m = t.clamp_abs(*lim);
+        }
+    }
+
+    /// The torques the motors actually produce.
+    pub fn motor_torques(&self) -> Joints {
+        if self.powered {
+            self.motor_torque
+        } else {
+            JOINTS_ZERO
+        }
+    }
+
+    /// The user's action for the coming period.
+    pub fn set_user_effort(&mut self, e: &EffortSample) {
+        self.user = *e;
+    }
+
+    pub fn user_effort(&self) -> &EffortSample {
+        &self.user
+    }
+
+    /// Kinematics at the current configuration.
+    pub fn kinematics(&mut self) -> &Kinematics {
+        if !self.kin_valid {
+            self.kin = arm::kinematics(&self.q);
+            self.kin_valid = true;
+        }
+        &self.kin
+    }
+
+    /// The hardware's view of the arm now.
+    pub fn measures(&mut self) -> Measures {
+        let user = self.user;
+        let rot = self.kinematics().handle_rot;
+        Measures {
+            encoders: self.q.map(arm::encoder_counts),
+            joint_speeds: self.qd,
+            force_sensor: Wrench {
+                force: rot.tmul_vec(user.wrench.force),
+                torque: rot.tmul_vec(user.wrench.torque),
+            },
+            power_on: self.powered,
+            dead_man: user.dead_man,
+            buttons: user.buttons,
+            joint_limit: self.joint_limit,
+        }
+    }
+
+    /// `simulate_arm`: advance the arm by one servo period.
+    #[allow(clippy::needless_range_loop)]
+    pub fn simulate_arm(&mut self) {
+        let motor = self.motor_torques();
+        let kin = *self.kinematics();
+        let user_tau = arm::jacobian_transpose_mul(&kin.jacobian, &self.user.wrench);
+        let dt = Fx(self.period.0 / SUBSTEPS as i64);
+        let mut base = JOINTS_ZERO;
+        let mut dt_over_i = JOINTS_ZERO;
+        for i in 0..6 {
+            base[i] = motor[i].add_sat(user_tau[i]).add_sat(kin.gravity[i]);
+            dt_over_i[i] = dt.div_sat(kin.inertia[i]);
+        }
+        let coulomb_gain = COULOMB_GAIN;
+        let mut limit = false;
+        for _ in 0..SUBSTEPS {
+            for i in 0..6 {
+                let (q, qd) = (self.q[i], self.qd[i]);
+                let mut tau = base[i]
+                    .sub_sat(arm::DAMPING[i].mul_sat(qd))
+                    .sub_sat(arm::COULOMB[i].mul_sat(qd.mul_sat(coulomb_gain).clamp_abs(Fx::ONE)));
+                if q > arm::Q_MAX[i] {
+                    limit = true;
+                    let t = arm::STOP_STIFFNESS[i]
+                        .mul_sat(q.sub_sat(arm::Q_MAX[i]))
+                        .add_sat(arm::STOP_DAMPING[i].mul_sat(qd));
+                    tau = tau.sub_sat(t.max(Fx::ZERO));
+                } else if q < arm::Q_MIN[i] {
+                    limit = true;
+                    let t = arm::STOP_STIFFNESS[i]
+                        .mul_sat(q.sub_sat(arm::Q_MIN[i]))
+                        .add_sat(arm::STOP_DAMPING[i].mul_sat(qd));
+                    tau = tau.sub_sat(t.min(Fx::ZERO));
+                }
+                let qd = qd.add_sat(tau.mul_sat(dt_over_i[i]));
+                self.qd[i] = qd;
+                self.q[i] = q.add_sat(qd.mul_sat(dt));
+            }
+        }
+        self.joint_limit = limit;
+        self.kin_valid = false;
+    }
+}
+
+/// 1 / `arm::COULOMB_LINEAR_SPEED`.
+const COULOMB_GAIN: Fx = Fx::from_int(100);
+
+/// One cycle of the binary position log (little-endian, 288 bytes), streamed
+/// by the kernel to a device and read by offline analysis.
+///
+/// | offset | size | field |
+/// |---|---|---|
+/// | 0 | 4 | magic `b"HAPL"` |
+/// | 4 | 2 | version (1) |
+/// | 6 | 2 | flags: bit0 power, bit1 motors enabled, bit2 dead-man, bit3 button1, bit4 button2, bit5 degraded, bit6 coupled |
+/// | 8 | 8 | cycle (u64) |
+/// | 16 | 48 | joint positions q, 6 × i64 Q32.32 rad |
+/// | 64 | 48 | joint speeds q̇, 6 × i64 Q32.32 rad/s |
+/// | 112 | 24 | handle position, 3 × i64 Q32.32 m (arm base frame) |
+/// | 136 | 32 | handle orientation x, y, z, w, 4 × i64 Q32.32 |
+/// | 168 | 48 | motor torques applied, 6 × i64 Q32.32 N·m |
+/// | 216 | 48 | user wrench fx fy fz tx ty tz, 6 × i64 Q32.32 (base frame) |
+/// | 264 | 4 | status bits (`vp::status`) |
+/// | 268 | 4 | alarm bits (`vp::alarm`) |
+/// | 272 | 8 | passivity observer energy, i64 Q32.32 J |
+/// | 280 | 8 | coupling force norm at the handle, i64 Q32.32 N |
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LogRecord {
+    pub flags: u16,
+    pub cycle: u64,
+    pub q: Joints,
+    pub qd: Joints,
+    pub handle_position: Vec3,
+    pub handle_orientation: [Fx; 4],
+    pub motor_torque: Joints,
+    pub user_wrench: [Fx; 6],
+    pub status: u32,
+    pub alarms: u32,
+    pub po_energy: Fx,
+    pub coupling_force: Fx,
+}
+
+/// Error decoding a [`LogRecord`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LogDecodeError {
+    BadMagic,
+    BadVersion,
+}
+
+impl LogRecord {
+    pub const SIZE: usize = 288;
+    pub const MAGIC: [u8; 4] = *b"HAPL";
+    pub const VERSION: u16 = 1;
+
+    pub const ZERO: LogRecord = LogRecord {
+        flags: 0,
+        cycle: 0,
+        q: JOINTS_ZERO,
+        qd: JOINTS_ZERO,
+        handle_position: Vec3::ZERO,
+        handle_orientation: [Fx::ZERO; 4],
+        motor_torque: JOINTS_ZERO,
+        user_wrench: [Fx::ZERO; 6],
+        status: 0,
+        alarms: 0,
+        po_energy: Fx::ZERO,
+        coupling_force: Fx::ZERO,
+    };
+
+    pub fn encode(&self, out: &mut [u8; LogRecord::SIZE]) {
+        let mut w = Writer { buf: out, pos: 0 };
+        w.put(&LogRecord::MAGIC);
+        w.put(&LogRecord::VERSION.to_le_bytes());
+        w.put(&self.flags.to_le_bytes());
+        w.put(&self.cycle.to_le_bytes());
+        w.fxs(&self.q);
+        w.fxs(&self.qd);
+        w.fxs(&self.handle_position.to_array());
+        w.fxs(&self.handle_orientation);
+        w.fxs(&self.motor_torque);
+        w.fxs(&self.user_wrench);
+        w.put(&self.status.to_le_bytes());
+        w.put(&self.alarms.to_le_bytes());
+        w.fxs(&[self.po_energy, self.coupling_force]);
+    }
+
+    pub fn decode(buf: &[u8; LogRecord::SIZE]) -> Result<LogRecord, LogDecodeError> {
+        let mut r = Reader { buf, pos: 0 };
+        if r.arr::<4>() != LogRecord::MAGIC {
+            return Err(LogDecodeError::BadMagic);
+        }
+        if u16::from_le_bytes(r.arr()) != LogRecord::VERSION {
+            return Err(LogDecodeError::BadVersion);
+        }
+        let flags = u16::from_le_bytes(r.arr());
+        let cycle = u64::from_le_bytes(r.arr());
+        let q = r.fxs::<6>();
+        let qd = r.fxs::<6>();
+        let handle_position = Vec3::from_array(r.fxs::<3>());
+        let handle_orientation = r.fxs::<4>();
+        let motor_torque = r.fxs::<6>();
+        let user_wrench = r.fxs::<6>();
+        let status = u32::from_le_bytes(r.arr());
+        let alarms = u32::from_le_bytes(r.arr());
+        let [po_energy, coupling_force] = r.fxs::<2>();
+        Ok(LogRecord {
+            flags,
+            cycle,
+            q,
+            qd,
+            handle_position,
+            handle_orientation,
+            motor_torque,
+            user_wrench,
+            status,
+            alarms,
+            po_energy,
+            coupling_force,
+        })
+    }
+}
+
+struct Writer<'a> {
+    buf: &'a mut [u8; LogRecord::SIZE],
+    pos: usize,
+}
+
+impl Writer<'_> {
+    fn put(&mut self, b: &[u8]) {
+        let end = self.pos.saturating_add(b.len());
+        if let Some(d) = self.buf.get_mut(self.pos..end) {
+            d.copy_from_slice(b);
+        }
+        self.pos = end;
+    }
+
+    fn fxs(&mut self, v: &[Fx]) {
+        for x in v {
+            self.put(&x.0.to_le_bytes());
+        }
+    }
+}
+
+struct Reader<'a> {
+    buf: &'a [u8; LogRecord::SIZE],
+    pos: usize,
+}
+
+impl Reader<'_> {
+    fn arr<const N: usize>(&mut self) -> [u8; N] {
+        let mut a = [0u8; N];
+        let end = self.pos.saturating_add(N);
+        if let Some(s) = self.buf.get(self.pos..end) {
+            a.copy_from_slice(s);
+        }
+        self.pos = end;
+        a
+    }
+
+    fn fxs<const N: usize>(&mut self) -> [Fx; N] {
+        let mut v = [Fx::ZERO; N];
+        for x in v.iter_mut() {
+            *x = Fx(i64::from_le_bytes(self.arr()));
+        }
+        v
+    }
+}
