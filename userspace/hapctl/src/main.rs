@@ -1,0 +1,256 @@
+//! hapctl: control tool for hapticctrl (runs in the guest next to the
+//! module; `analyze` also runs on the host). See Documentation/userguide.md.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand, ValueEnum};
+
+#[cfg(feature = "analyze")]
+mod analyze;
+mod kv;
+mod simlog;
+
+/// Control the hapticctrl haptic controller.
+#[derive(Parser, Debug)]
+#[command(name = "hapctl", version, propagate_version = true)]
+struct Cli {
+    /// Directory holding the module's devices (hap_power, hap_stats, ...).
+    #[arg(long, global = true, env = "HAPCTL_DEV_DIR", default_value = "/dev")]
+    dev_dir: PathBuf,
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand, Debug)]
+enum Cmd {
+    /// Start proto_interface then insert the module (runs the launch script).
+    Start {
+        /// Servo period in µs (module parameter period_us).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(100..=100_000))]
+        period_us: Option<u32>,
+        /// The launch script (default: $HAPCTL_SCRIPT, else hapticctrl.sh next to hapctl, else from PATH).
+        #[arg(long)]
+        script: Option<PathBuf>,
+    },
+    /// Fail-safe stop, stop proto_interface, remove the module.
+    Stop {
+        #[arg(long)]
+        script: Option<PathBuf>,
+    },
+    /// Simulated arm supply power request.
+    Power {
+        #[arg(value_enum)]
+        state: OnOff,
+    },
+    /// Show the module's statistics and proto_interface's counters.
+    Stats {
+        /// proto_interface's counters file.
+        #[arg(long, default_value = "/run/proto_interface.stats")]
+        proto_stats: PathBuf,
+        /// Print the raw `key: value` text instead of a table.
+        #[arg(long)]
+        raw: bool,
+    },
+    /// Simulator commands.
+    Sim {
+        #[command(subcommand)]
+        cmd: SimCmd,
+    },
+    /// Capture the simulator's position log (/dev/hap_simlog).
+    Log {
+        /// Output file (binary records, as read); default stdout as CSV.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Stop after this many records (default: until interrupted or EOF).
+        #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+        cycles: Option<u64>,
+    },
+    /// Off-line analysis: plots (PNG and SVG) from a captured log.
+    #[cfg(feature = "analyze")]
+    Analyze {
+        /// A log captured by `hapctl log --out`.
+        log: PathBuf,
+        /// Output directory (created).
+        #[arg(long)]
+        out: PathBuf,
+        /// A dump of /dev/hap_stats (`cat /dev/hap_stats > FILE`) for the
+        /// cycle-time and wake-up latency histograms.
+        #[arg(long)]
+        stats: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum SimCmd {
+    /// Validate an effort sequence file, then load it into the simulator.
+    Load { file: PathBuf },
+    /// Apply a constant live effort: fx fy fz (N) tx ty tz (N·m).
+    Live {
+        #[arg(num_args = 6, allow_negative_numbers = true)]
+        wrench: Vec<f64>,
+    },
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum OnOff {
+    On,
+    Off,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("hapctl: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn dev(cli_dir: &Path, name: &str) -> PathBuf {
+    cli_dir.join(name)
+}
+
+fn write_dev(path: &Path, data: &[u8]) -> Result<(), String> {
+    use std::io::Write;
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .open(path)
+        .map_err(|e| format!("{}: {e} (is the module loaded?)", path.display()))?;
+    f.write_all(data)
+        .map_err(|e| format!("{}: write: {e}", path.display()))
+}
+
+fn find_script(explicit: Option<PathBuf>) -> Result<PathBuf, String> {
+    if let Some(p) = explicit {
+        return Ok(p);
+    }
+    if let Ok(p) = std::env::var("HAPCTL_SCRIPT") {
+        return Ok(PathBuf::from(p));
+    }
+    if let Ok(exe) = std::env::current_exe() {
+        if let Some(dir) = exe.parent() {
+            let p = dir.join("hapticctrl.sh");
+            if p.exists() {
+                return Ok(p);
+            }
+        }
+    }
+    if let Some(path) = std::env::var_os("PATH") {
+        for d in std::env::split_paths(&path) {
+            let p = d.join("hapticctrl.sh");
+            if p.exists() {
+                return Ok(p);
+            }
+        }
+    }
+    Err("cannot find the launch script hapticctrl.sh (use --script or HAPCTL_SCRIPT)".into())
+}
+
+fn run_script(script: Option<PathBuf>, args: &[String]) -> Result<(), String> {
+    let script = find_script(script)?;
+    let st = std::process::Command::new("sh")
+        .arg(&script)
+        .args(args)
+        .status()
+        .map_err(|e| format!("{}: {e}", script.display()))?;
+    if st.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "{} {} failed ({st})",
+            script.display(),
+            args.join(" ")
+        ))
+    }
+}
+
+fn run(cli: Cli) -> Result<(), String> {
+    let d = cli.dev_dir.as_path();
+    match cli.cmd {
+        Cmd::Start { period_us, script } => {
+            let mut args = vec!["start".to_string()];
+            if let Some(p) = period_us {
+                args.push("--period-us".into());
+                args.push(p.to_string());
+            }
+            run_script(script, &args)
+        }
+        Cmd::Stop { script } => run_script(script, &["stop".to_string()]),
+        Cmd::Power { state } => {
+            let v: &[u8] = match state {
+                OnOff::On => b"1",
+                OnOff::Off => b"0",
+            };
+            write_dev(&dev(d, "hap_power"), v)?;
+            println!(
+                "power {}",
+                if matches!(state, OnOff::On) {
+                    "on requested"
+                } else {
+                    "off requested"
+                }
+            );
+            Ok(())
+        }
+        Cmd::Stats { proto_stats, raw } => stats(&dev(d, "hap_stats"), &proto_stats, raw),
+        Cmd::Sim { cmd } => match cmd {
+            SimCmd::Load { file } => sim_load(&dev(d, "hap_effort"), &file),
+            SimCmd::Live { wrench } => {
+                let line = simlog::live_line(&wrench)?;
+                write_dev(&dev(d, "hap_effort"), line.as_bytes())?;
+                print!("{line}");
+                Ok(())
+            }
+        },
+        Cmd::Log { out, cycles } => simlog::capture(&dev(d, "hap_simlog"), out.as_deref(), cycles),
+        #[cfg(feature = "analyze")]
+        Cmd::Analyze { log, out, stats } => analyze::run(&log, &out, stats.as_deref()),
+    }
+}
+
+fn stats(module: &Path, proto: &Path, raw: bool) -> Result<(), String> {
+    let mut any = false;
+    match std::fs::read_to_string(module) {
+        Ok(text) => {
+            any = true;
+            println!("== module ({}) ==", module.display());
+            if raw {
+                print!("{text}");
+            } else {
+                print!("{}", kv::table(&kv::parse(&text)));
+            }
+        }
+        Err(e) => eprintln!("hapctl: {}: {e} (is the module loaded?)", module.display()),
+    }
+    match std::fs::read_to_string(proto) {
+        Ok(text) => {
+            any = true;
+            println!("== proto_interface ({}) ==", proto.display());
+            if raw {
+                print!("{text}");
+            } else {
+                print!("{}", kv::table(&kv::parse(&text)));
+            }
+        }
+        Err(e) => eprintln!(
+            "hapctl: {}: {e} (is proto_interface running?)",
+            proto.display()
+        ),
+    }
+    if any {
+        Ok(())
+    } else {
+        Err("no statistics available".into())
+    }
+}
+
+fn sim_load(effort_dev: &Path, file: &Path) -> Result<(), String> {
+    let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
+    let summary = simlog::validate_effort(&text).map_err(|e| format!("{}: {e}", file.display()))?;
+    write_dev(effort_dev, text.as_bytes())?;
+    println!("loaded {} ({summary})", file.display());
+    Ok(())
+}

@@ -1,0 +1,327 @@
+//! A fake controller speaking hap-core frames over UDP, for tests and for
+//! running the demo without the kernel module (`virtuose_demo --server fake`).
+//!
+//! It grants one session (other source addresses are ignored, like the
+//! bridge does), acknowledges configuration requests, and answers every
+//! VprStream with an Answer: the handle follows a scripted sinusoid, and the
+//! coupling wrench is a spring-damper between the handle and the streamed
+//! virtual object (only while a virtual object is attached and power is on).
+
+use std::collections::BTreeMap;
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use hap_core::fixed::{Pose, Twist, Vec3, Wrench};
+use hap_core::protocol::{
+    decode, encode, Answer, AnswerTwist, Frame, FrameHeader, CTRL_ACK_REQUEST, ERROR_NO_SESSION,
+    MAX_FRAME_LEN,
+};
+use hap_core::vp::status;
+
+/// Behaviour of the fake controller.
+#[derive(Clone, Debug)]
+pub struct FakePeerConfig {
+    pub bind: SocketAddr,
+    pub period_us: u32,
+    /// Coupling spring (N/m) and damper (N·s/m).
+    pub stiffness: f64,
+    pub damping: f64,
+    /// Handle position = center + amplitude · sin(2π·freq·t).
+    pub center: [f64; 3],
+    pub amplitude: [f64; 3],
+    pub freq_hz: f64,
+    /// Drop every Nth answer (0: never), to exercise loss accounting.
+    pub drop_every: u32,
+    /// Send every Nth answer twice (0: never), to exercise duplicate drops.
+    pub duplicate_every: u32,
+    /// Send an AnswerTwist after every Nth answer (0: never).
+    pub twist_every: u32,
+    /// Start with the arm powered.
+    pub powered: bool,
+}
+
+impl Default for FakePeerConfig {
+    fn default() -> Self {
+        FakePeerConfig {
+            bind: SocketAddr::from(([127, 0, 0, 1], 0)),
+            period_us: 1000,
+            stiffness: 300.0,
+            damping: 4.0,
+            center: [0.0, 0.0, 0.0],
+            amplitude: [0.05, 0.0, 0.02],
+            freq_hz: 0.5,
+            drop_every: 0,
+            duplicate_every: 0,
+            twist_every: 10,
+            powered: false,
+        }
+    }
+}
+
+/// What the fake controller saw.
+#[derive(Clone, Debug, Default)]
+pub struct FakePeerStats {
+    /// Frames received, by frame-type name.
+    pub frames: BTreeMap<&'static str, u64>,
+    /// Datagrams that did not decode.
+    pub garbage: u64,
+    /// Frames from a source other than the session's client, ignored.
+    pub stray: u64,
+    pub answers_sent: u64,
+    pub powered: bool,
+    pub attached: bool,
+    /// Last virtual-object position streamed.
+    pub last_vo_position: [f64; 3],
+    pub client: Option<SocketAddr>,
+}
+
+/// A running fake controller; stops when dropped.
+pub struct FakePeer {
+    pub addr: SocketAddr,
+    stop: Arc<AtomicBool>,
+    stats: Arc<Mutex<FakePeerStats>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl FakePeer {
+    pub fn start(cfg: FakePeerConfig) -> std::io::Result<FakePeer> {
+        let sock = UdpSocket::bind(cfg.bind)?;
+        sock.set_read_timeout(Some(Duration::from_millis(50)))?;
+        let addr = sock.local_addr()?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let stats = Arc::new(Mutex::new(FakePeerStats {
+            powered: cfg.powered,
+            ..Default::default()
+        }));
+        let (s2, st2) = (stop.clone(), stats.clone());
+        let thread = std::thread::Builder::new()
+            .name("fake_peer".into())
+            .spawn(move || run(cfg, sock, s2, st2))?;
+        Ok(FakePeer {
+            addr,
+            stop,
+            stats,
+            thread: Some(thread),
+        })
+    }
+
+    /// `"127.0.0.1#port"`, ready for `VirtContext::open`.
+    pub fn address(&self) -> String {
+        format!("{}#{}", self.addr.ip(), self.addr.port())
+    }
+
+    pub fn stats(&self) -> FakePeerStats {
+        self.stats.lock().map(|s| s.clone()).unwrap_or_default()
+    }
+
+    pub fn stop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for FakePeer {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn v3(a: [f64; 3]) -> Vec3 {
+    Vec3::from_f64(a)
+}
+
+fn run(
+    cfg: FakePeerConfig,
+    sock: UdpSocket,
+    stop: Arc<AtomicBool>,
+    stats: Arc<Mutex<FakePeerStats>>,
+) {
+    let t0 = Instant::now();
+    let mut buf = [0u8; 2048];
+    let mut out = [0u8; MAX_FRAME_LEN];
+    let mut client: Option<SocketAddr> = None;
+    let mut session: u16 = 0;
+    let mut seq: u32 = 0;
+    let mut cycle: u32 = 0;
+    let mut powered = cfg.powered;
+    let mut attached = false;
+    let mut n_answers: u64 = 0;
+    let w = 2.0 * std::f64::consts::PI * cfg.freq_hz;
+
+    let send =
+        |f: &Frame, seq: &mut u32, session: u16, to: SocketAddr, out: &mut [u8; MAX_FRAME_LEN]| {
+            *seq = seq.wrapping_add(1);
+            let h = FrameHeader {
+                control: 0,
+                session,
+                seq: *seq,
+                timestamp_us: t0.elapsed().as_micros() as u32,
+            };
+            let n = encode(&h, f, out);
+            let _ = sock.send_to(&out[..n], to);
+            n
+        };
+
+    while !stop.load(Ordering::SeqCst) {
+        let (n, src) = match sock.recv_from(&mut buf) {
+            Ok(x) => x,
+            Err(_) => continue,
+        };
+        let Ok((h, frame)) = decode(&buf[..n]) else {
+            if let Ok(mut s) = stats.lock() {
+                s.garbage += 1;
+            }
+            continue;
+        };
+        if let Ok(mut s) = stats.lock() {
+            *s.frames.entry(frame.frame_type().name()).or_insert(0) += 1;
+        }
+        if let Some(c) = client {
+            if c != src {
+                if let Ok(mut s) = stats.lock() {
+                    s.stray += 1;
+                }
+                continue;
+            }
+        }
+        let ack = |seq: &mut u32, session: u16, out: &mut [u8; MAX_FRAME_LEN]| {
+            if h.control & CTRL_ACK_REQUEST != 0 {
+                send(
+                    &Frame::Ack {
+                        acked_type: frame.frame_type(),
+                        acked_seq: h.seq,
+                    },
+                    seq,
+                    session,
+                    src,
+                    out,
+                );
+            }
+        };
+        match frame {
+            Frame::OpenSession { client_nonce } => {
+                if client.is_none() {
+                    session = session.wrapping_add(1).max(1);
+                    seq = 0;
+                }
+                client = Some(src);
+                send(
+                    &Frame::SessionAck {
+                        client_nonce,
+                        period_us: cfg.period_us,
+                    },
+                    &mut seq,
+                    session,
+                    src,
+                    &mut out,
+                );
+            }
+            _ if client.is_none() => {
+                send(
+                    &Frame::Error {
+                        reason: ERROR_NO_SESSION,
+                        rejected_seq: h.seq,
+                    },
+                    &mut seq,
+                    0,
+                    src,
+                    &mut out,
+                );
+            }
+            Frame::CloseSession => {
+                ack(&mut seq, session, &mut out);
+                client = None;
+                attached = false;
+            }
+            Frame::PowerRequest(on) => {
+                powered = on;
+                ack(&mut seq, session, &mut out);
+            }
+            Frame::AttachVirtualObject(_) => {
+                attached = true;
+                ack(&mut seq, session, &mut out);
+            }
+            Frame::DetachVirtualObject => {
+                attached = false;
+                ack(&mut seq, session, &mut out);
+            }
+            Frame::VprStream { pose, twist } => {
+                let t = t0.elapsed().as_secs_f64();
+                let mut hp = [0.0; 3];
+                let mut hv = [0.0; 3];
+                for i in 0..3 {
+                    hp[i] = cfg.center[i] + cfg.amplitude[i] * (w * t).sin();
+                    hv[i] = cfg.amplitude[i] * w * (w * t).cos();
+                }
+                let vo = pose.position.to_f64();
+                let vv = twist.linear.to_f64();
+                let mut f = [0.0; 3];
+                if attached && powered {
+                    for i in 0..3 {
+                        f[i] = cfg.stiffness * (hp[i] - vo[i]) + cfg.damping * (hv[i] - vv[i]);
+                    }
+                }
+                cycle = cycle.wrapping_add(1);
+                let mut st = status::DEAD_MAN;
+                if powered {
+                    st |= status::POWER_ON | status::MOTORS_ENABLED;
+                }
+                if attached {
+                    st |= status::COUPLED;
+                }
+                let answer = Answer {
+                    handle_pose: Pose {
+                        position: v3(hp),
+                        orientation: Default::default(),
+                    },
+                    coupling_wrench: Wrench {
+                        force: v3(f),
+                        torque: Vec3::default(),
+                    },
+                    status: st,
+                    alarms: 0,
+                    cycle,
+                    vpr_seq: h.seq,
+                };
+                n_answers += 1;
+                let drop_it = cfg.drop_every > 0 && n_answers % cfg.drop_every as u64 == 0;
+                if drop_it {
+                    seq = seq.wrapping_add(1); // a lost datagram leaves a gap
+                } else {
+                    let len = send(&Frame::Answer(answer), &mut seq, session, src, &mut out);
+                    if cfg.duplicate_every > 0 && n_answers % cfg.duplicate_every as u64 == 0 {
+                        let _ = sock.send_to(&out[..len], src);
+                    }
+                }
+                if cfg.twist_every > 0 && n_answers % cfg.twist_every as u64 == 0 {
+                    let tw = AnswerTwist {
+                        handle_twist: Twist {
+                            linear: v3(hv),
+                            angular: Vec3::default(),
+                        },
+                        status: st,
+                        alarms: 0,
+                        cycle,
+                        vpr_seq: h.seq,
+                    };
+                    send(&Frame::AnswerTwist(tw), &mut seq, session, src, &mut out);
+                }
+                if let Ok(mut s) = stats.lock() {
+                    s.last_vo_position = vo;
+                    s.answers_sent = n_answers;
+                }
+            }
+            _ => ack(&mut seq, session, &mut out),
+        }
+        if let Ok(mut s) = stats.lock() {
+            s.powered = powered;
+            s.attached = attached;
+            s.client = client;
+        }
+    }
+}

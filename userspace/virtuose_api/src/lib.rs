@@ -1,0 +1,893 @@
+//! virtuose_api: client library for the hapticctrl haptic controller,
+//! modelled on Haption's VirtuoseAPI (spec D9rb.2 §3.1).
+//!
+//! ```no_run
+//! use virtuose_api::{VirtContext, CommandType};
+//! let mut vc = VirtContext::open("127.0.0.1#5000")?;
+//! vc.set_time_step(0.001)?;
+//! vc.set_command_type(CommandType::VirtMech)?;
+//! vc.attach_vo(0.5, [0.001, 0.001, 0.001])?;
+//! vc.set_power_on(true)?;
+//! loop {
+//!     let handle = vc.get_position()?;      // [x,y,z,qx,qy,qz,qw]
+//!     let wrench = vc.get_force()?;         // force on the virtual object
+//!     // ... integrate the virtual object with `wrench` ...
+//!     vc.set_speed(&[0.0; 6])?;
+//!     vc.set_position(&handle)?;            // streams one VprStream frame
+//! #   break;
+//! }
+//! vc.close()?;
+//! # Ok::<(), virtuose_api::VirtError>(())
+//! ```
+//!
+//! Every frame is encoded and decoded by `hap_core::protocol` (the one
+//! source of truth). A background thread receives the controller's answers:
+//! duplicates and stale answers (sequence number not newer than the last
+//! one) are dropped, gaps are counted as losses, and the round-trip time is
+//! measured from the `vpr_seq` the controller echoes. [`VirtContext::link_stats`]
+//! reports rate, loss and RTT.
+
+pub mod conv;
+pub mod fake_peer;
+pub mod ffi;
+
+use std::collections::HashMap;
+use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use hap_core::config::VirtualObjectParams;
+pub use hap_core::config::{CommandType, IndexingMode};
+use hap_core::fixed::{Pose, Twist};
+use hap_core::protocol::{
+    decode, encode, seq_newer, Answer, DecodeError, Frame, FrameHeader, FrameType,
+    CTRL_ACK_REQUEST, ERROR_NO_SESSION, ERROR_REFUSED, MAX_FRAME_LEN,
+};
+use hap_core::vp::status;
+
+/// Default UDP port of proto_interface.
+pub const DEFAULT_PORT: u16 = 5000;
+
+/// Every error the API can return. `code()` is the integer the C ABI returns
+/// through `virtGetErrorCode`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum VirtError {
+    /// The address string could not be parsed or resolved.
+    InvalidAddress(String),
+    /// A socket operation failed.
+    Io(String),
+    /// No reply to a request within the configured timeout and retries.
+    Timeout(&'static str),
+    /// The controller refused a request (reason code and name).
+    Refused {
+        request: &'static str,
+        reason: u32,
+        name: String,
+    },
+    /// A parameter is invalid (NaN, out of range...).
+    InvalidArgument(String),
+    /// No answer frame has been received yet (get_* before the first answer).
+    NoData,
+    /// The context was closed.
+    Closed,
+    /// A null pointer or invalid handle was passed to the C ABI.
+    NullPointer,
+}
+
+impl VirtError {
+    /// Stable integer code (C ABI).
+    pub fn code(&self) -> i32 {
+        match self {
+            VirtError::InvalidAddress(_) => 1,
+            VirtError::Io(_) => 2,
+            VirtError::Timeout(_) => 3,
+            VirtError::Refused { .. } => 4,
+            VirtError::InvalidArgument(_) => 5,
+            VirtError::NoData => 6,
+            VirtError::Closed => 7,
+            VirtError::NullPointer => 8,
+        }
+    }
+
+    /// Generic message of a code (C ABI, when no detailed message is kept).
+    pub fn code_message(code: i32) -> &'static str {
+        match code {
+            0 => "no error",
+            1 => "invalid address (expected \"host#port\" or \"host\")",
+            2 => "socket error",
+            3 => "timeout: no reply from the controller",
+            4 => "request refused by the controller",
+            5 => "invalid argument",
+            6 => "no data received from the controller yet",
+            7 => "context closed",
+            8 => "null pointer or invalid context",
+            _ => "unknown error code",
+        }
+    }
+}
+
+impl std::fmt::Display for VirtError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            VirtError::InvalidAddress(s) => write!(f, "invalid address: {s}"),
+            VirtError::Io(s) => write!(f, "socket error: {s}"),
+            VirtError::Timeout(op) => write!(f, "timeout: no reply from the controller to {op}"),
+            VirtError::Refused {
+                request,
+                reason,
+                name,
+            } => {
+                write!(
+                    f,
+                    "{request} refused by the controller: {name} ({reason:#x})"
+                )
+            }
+            VirtError::InvalidArgument(s) => write!(f, "invalid argument: {s}"),
+            VirtError::NoData => write!(f, "no answer received from the controller yet"),
+            VirtError::Closed => write!(f, "context closed"),
+            VirtError::NullPointer => write!(f, "null pointer or invalid context"),
+        }
+    }
+}
+
+impl std::error::Error for VirtError {}
+
+impl From<std::io::Error> for VirtError {
+    fn from(e: std::io::Error) -> Self {
+        VirtError::Io(e.to_string())
+    }
+}
+
+pub type Result<T> = std::result::Result<T, VirtError>;
+
+/// Timeouts and retries.
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    /// How long to wait for the SessionAck / Ack of one attempt.
+    pub reply_timeout: Duration,
+    /// Attempts for each acknowledged request (open, configuration, power).
+    pub attempts: u32,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            reply_timeout: Duration::from_millis(250),
+            attempts: 4,
+        }
+    }
+}
+
+/// Link quality as measured by the receiver thread.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LinkStats {
+    /// Frames sent (all types).
+    pub sent: u64,
+    /// VprStream frames sent.
+    pub vpr_sent: u64,
+    /// Answer frames accepted.
+    pub answers: u64,
+    /// Controller frames missing (gaps in its sequence numbers).
+    pub lost: u64,
+    /// Duplicates (same sequence number as the last accepted) dropped.
+    pub duplicates: u64,
+    /// Stale frames (older than the last accepted) dropped.
+    pub stale: u64,
+    /// Datagrams that did not decode.
+    pub decode_errors: u64,
+    /// Answers per second over the last measurement window (~0.5 s).
+    pub rate_hz: f64,
+    /// lost / (received + lost) over the whole session.
+    pub loss_ratio: f64,
+    /// Round-trip time of the last VprStream → Answer pair, ms.
+    pub rtt_ms_last: f64,
+    /// Mean RTT over the session, ms.
+    pub rtt_ms_mean: f64,
+    /// Maximum RTT over the session, ms.
+    pub rtt_ms_max: f64,
+    /// Controller servo period announced in the SessionAck, µs.
+    pub period_us: u32,
+}
+
+/// A reply to an acknowledged request.
+#[derive(Clone, Copy, Debug)]
+enum Reply {
+    Ack,
+    Error(u32),
+}
+
+const RTT_RING: usize = 4096;
+
+struct State {
+    session: u16,
+    session_nonce: u32,
+    session_ack: Option<(u16, u32)>,
+    replies: HashMap<u32, Reply>,
+    answer: Option<Answer>,
+    twist: Twist,
+    last_seq: Option<u32>,
+    stats: LinkStats,
+    rtt_sum: f64,
+    rtt_n: u64,
+    last_vpr_seq_seen: Option<u32>,
+    sent_at: Vec<(u32, Option<Instant>)>,
+    window_start: Instant,
+    window_count: u64,
+    /// Bumped on every accepted answer (for `wait_answer`).
+    answer_gen: u64,
+}
+
+struct Inner {
+    sock: UdpSocket,
+    state: Mutex<State>,
+    cond: Condvar,
+    stop: AtomicBool,
+    seq: AtomicU32,
+    t0: Instant,
+}
+
+impl Inner {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        match self.state.lock() {
+            Ok(g) => g,
+            Err(p) => p.into_inner(),
+        }
+    }
+
+    fn next_seq(&self) -> u32 {
+        self.seq.fetch_add(1, Ordering::Relaxed).wrapping_add(1)
+    }
+
+    fn now_us(&self) -> u32 {
+        self.t0.elapsed().as_micros() as u32
+    }
+
+    /// Encode with hap-core and send; returns the sequence number used.
+    fn send(&self, frame: &Frame, control: u16) -> Result<u32> {
+        let seq = self.next_seq();
+        let session = self.lock().session;
+        let h = FrameHeader {
+            control,
+            session,
+            seq,
+            timestamp_us: self.now_us(),
+        };
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let n = encode(&h, frame, &mut buf);
+        if n == 0 {
+            return Err(VirtError::InvalidArgument("frame does not encode".into()));
+        }
+        if let Frame::VprStream { .. } = frame {
+            let mut st = self.lock();
+            st.sent_at[seq as usize % RTT_RING] = (seq, Some(Instant::now()));
+            st.stats.vpr_sent += 1;
+        }
+        self.sock.send(&buf[..n])?;
+        self.lock().stats.sent += 1;
+        Ok(seq)
+    }
+}
+
+/// A connection to a hapticctrl controller (VirtuoseAPI `VirtContext`).
+pub struct VirtContext {
+    inner: Arc<Inner>,
+    rx: Option<JoinHandle<()>>,
+    opts: Options,
+    peer: SocketAddr,
+    force_factor: f32,
+    speed_factor: f32,
+    speed: Twist,
+    closed: bool,
+}
+
+/// Parse `"host#port"` (VirtuoseAPI style) or `"host"` (port 5000); also
+/// accepts `"host:port"`.
+pub fn parse_address(s: &str) -> Result<SocketAddr> {
+    let s = s.trim();
+    if s.is_empty() {
+        return Err(VirtError::InvalidAddress("empty address".into()));
+    }
+    let (host, port) = match s.rsplit_once('#') {
+        Some((h, p)) => {
+            let port: u16 = p
+                .parse()
+                .map_err(|_| VirtError::InvalidAddress(format!("{s}: bad port '{p}'")))?;
+            (h.to_string(), port)
+        }
+        None => {
+            // "host:port" (not for bare IPv6 addresses).
+            match s.rsplit_once(':') {
+                Some((h, p)) if !h.contains(':') => {
+                    let port: u16 = p
+                        .parse()
+                        .map_err(|_| VirtError::InvalidAddress(format!("{s}: bad port '{p}'")))?;
+                    (h.to_string(), port)
+                }
+                _ => (s.to_string(), DEFAULT_PORT),
+            }
+        }
+    };
+    if host.is_empty() {
+        return Err(VirtError::InvalidAddress(format!("{s}: empty host")));
+    }
+    if port == 0 {
+        return Err(VirtError::InvalidAddress(format!("{s}: port 0")));
+    }
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    (host, port)
+        .to_socket_addrs()
+        .map_err(|e| VirtError::InvalidAddress(format!("{s}: {e}")))?
+        .next()
+        .ok_or_else(|| VirtError::InvalidAddress(format!("{s}: no address")))
+}
+
+impl VirtContext {
+    /// Open a session with the controller at `"host#port"` (default port 5000).
+    pub fn open(addr: &str) -> Result<VirtContext> {
+        VirtContext::open_with(addr, Options::default())
+    }
+
+    /// Open with explicit timeouts.
+    pub fn open_with(addr: &str, opts: Options) -> Result<VirtContext> {
+        let peer = parse_address(addr)?;
+        let bind: SocketAddr = if peer.is_ipv4() {
+            "0.0.0.0:0"
+                .parse()
+                .map_err(|_| VirtError::Io("bind".into()))?
+        } else {
+            "[::]:0".parse().map_err(|_| VirtError::Io("bind".into()))?
+        };
+        let sock = UdpSocket::bind(bind)?;
+        sock.connect(peer)?;
+        sock.set_read_timeout(Some(Duration::from_millis(50)))?;
+        let rx_sock = sock.try_clone()?;
+        let t0 = Instant::now();
+        let nonce = (t0.elapsed().as_nanos() as u32)
+            ^ std::process::id().rotate_left(16)
+            ^ (sock.local_addr().map(|a| a.port()).unwrap_or(0) as u32);
+        let inner = Arc::new(Inner {
+            sock,
+            state: Mutex::new(State {
+                session: 0,
+                session_nonce: nonce,
+                session_ack: None,
+                replies: HashMap::new(),
+                answer: None,
+                twist: Twist::default(),
+                last_seq: None,
+                stats: LinkStats::default(),
+                rtt_sum: 0.0,
+                rtt_n: 0,
+                last_vpr_seq_seen: None,
+                sent_at: vec![(0, None); RTT_RING],
+                window_start: Instant::now(),
+                window_count: 0,
+                answer_gen: 0,
+            }),
+            cond: Condvar::new(),
+            stop: AtomicBool::new(false),
+            seq: AtomicU32::new(0),
+            t0,
+        });
+        let rx_inner = inner.clone();
+        let rx = std::thread::Builder::new()
+            .name("virtuose_rx".into())
+            .spawn(move || receiver(rx_inner, rx_sock))?;
+        let mut vc = VirtContext {
+            inner,
+            rx: Some(rx),
+            opts,
+            peer,
+            force_factor: 1.0,
+            speed_factor: 1.0,
+            speed: Twist::default(),
+            closed: false,
+        };
+        // OpenSession, retried with the same nonce until the SessionAck.
+        let mut ok = false;
+        for _ in 0..opts.attempts.max(1) {
+            vc.inner.send(
+                &Frame::OpenSession {
+                    client_nonce: nonce,
+                },
+                0,
+            )?;
+            let deadline = Instant::now() + opts.reply_timeout;
+            let mut st = vc.inner.lock();
+            loop {
+                if let Some((session, period)) = st.session_ack {
+                    st.session = session;
+                    st.stats.period_us = period;
+                    ok = true;
+                    break;
+                }
+                let now = Instant::now();
+                if now >= deadline {
+                    break;
+                }
+                st = match vc.inner.cond.wait_timeout(st, deadline - now) {
+                    Ok((g, _)) => g,
+                    Err(p) => p.into_inner().0,
+                };
+            }
+            if ok {
+                break;
+            }
+        }
+        if !ok {
+            vc.shutdown();
+            return Err(VirtError::Timeout("open_session"));
+        }
+        Ok(vc)
+    }
+
+    /// The controller's address.
+    pub fn peer(&self) -> SocketAddr {
+        self.peer
+    }
+
+    /// Session id granted by the controller.
+    pub fn session_id(&self) -> u16 {
+        self.inner.lock().session
+    }
+
+    /// Change timeouts and retries.
+    pub fn set_options(&mut self, opts: Options) {
+        self.opts = opts;
+    }
+
+    fn check_open(&self) -> Result<()> {
+        if self.closed {
+            Err(VirtError::Closed)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Send `frame` with an ACK request; wait for its Ack (retrying).
+    fn request(&self, frame: Frame) -> Result<()> {
+        self.check_open()?;
+        let name = frame.frame_type().name();
+        for _ in 0..self.opts.attempts.max(1) {
+            let seq = self.inner.send(&frame, CTRL_ACK_REQUEST)?;
+            let deadline = Instant::now() + self.opts.reply_timeout;
+            let mut st = self.inner.lock();
+            loop {
+                if let Some(r) = st.replies.remove(&seq) {
+                    return match r {
+                        Reply::Ack => Ok(()),
+                        Reply::Error(reason) => Err(VirtError::Refused {
+                            request: name,
+                            reason,
+                            name: reason_name(reason),
+                        }),
+                    };
+                }
+                let now = Instant::now();
+                if now >= deadline {
+                    break;
+                }
+                st = match self.inner.cond.wait_timeout(st, deadline - now) {
+                    Ok((g, _)) => g,
+                    Err(p) => p.into_inner().0,
+                };
+            }
+        }
+        Err(VirtError::Timeout(name))
+    }
+
+    /// The client's simulation time step, s (`virtSetTimeStep`).
+    pub fn set_time_step(&mut self, dt: f32) -> Result<()> {
+        if !(dt > 0.0 && dt <= 1.0) {
+            return Err(VirtError::InvalidArgument(format!(
+                "time step {dt} not in (0, 1] s"
+            )));
+        }
+        self.request(Frame::SetTimeStep(conv::fx("time step", dt)?))
+    }
+
+    pub fn set_indexing_mode(&mut self, mode: IndexingMode) -> Result<()> {
+        self.request(Frame::SetIndexingMode(mode))
+    }
+
+    pub fn set_command_type(&mut self, ty: CommandType) -> Result<()> {
+        self.request(Frame::SetCommandType(ty))
+    }
+
+    /// Scale from arm forces to client forces (> 0).
+    pub fn set_force_factor(&mut self, k: f32) -> Result<()> {
+        if !(k > 0.0 && k.is_finite()) {
+            return Err(VirtError::InvalidArgument(format!(
+                "force factor {k} must be > 0"
+            )));
+        }
+        self.request(Frame::SetFactors {
+            force: conv::fx("force factor", k)?,
+            speed: conv::fx("speed factor", self.speed_factor)?,
+        })?;
+        self.force_factor = k;
+        Ok(())
+    }
+
+    /// Scale from arm displacements to client displacements (> 0).
+    pub fn set_speed_factor(&mut self, k: f32) -> Result<()> {
+        if !(k > 0.0 && k.is_finite()) {
+            return Err(VirtError::InvalidArgument(format!(
+                "speed factor {k} must be > 0"
+            )));
+        }
+        self.request(Frame::SetFactors {
+            force: conv::fx("force factor", self.force_factor)?,
+            speed: conv::fx("speed factor", k)?,
+        })?;
+        self.speed_factor = k;
+        Ok(())
+    }
+
+    /// World → arm base, `[x,y,z,qx,qy,qz,qw]`.
+    pub fn set_base_frame(&mut self, pose: &[f32; 7]) -> Result<()> {
+        self.request(Frame::SetBaseFrame(conv::pose_from("base frame", pose)?))
+    }
+
+    /// World → observer, `[x,y,z,qx,qy,qz,qw]`.
+    pub fn set_observation_frame(&mut self, pose: &[f32; 7]) -> Result<()> {
+        self.request(Frame::SetObservationFrame(conv::pose_from(
+            "observation frame",
+            pose,
+        )?))
+    }
+
+    /// Attach a virtual object of `mass` kg and principal inertia (kg·m²).
+    pub fn attach_vo(&mut self, mass: f32, inertia: [f32; 3]) -> Result<()> {
+        if !(mass > 0.0 && mass.is_finite()) {
+            return Err(VirtError::InvalidArgument(format!(
+                "mass {mass} must be > 0"
+            )));
+        }
+        if inertia.iter().any(|i| !(i.is_finite() && *i >= 0.0)) {
+            return Err(VirtError::InvalidArgument(
+                "inertia must be finite and >= 0".into(),
+            ));
+        }
+        let p = VirtualObjectParams {
+            mass: conv::fx("mass", mass)?,
+            inertia: hap_core::fixed::Vec3::from_f64([
+                inertia[0] as f64,
+                inertia[1] as f64,
+                inertia[2] as f64,
+            ]),
+        };
+        self.request(Frame::AttachVirtualObject(p))
+    }
+
+    pub fn detach_vo(&mut self) -> Result<()> {
+        self.request(Frame::DetachVirtualObject)
+    }
+
+    /// Arm supply power request (`virtSetPowerOn`).
+    pub fn set_power_on(&mut self, on: bool) -> Result<()> {
+        self.request(Frame::PowerRequest(on))
+    }
+
+    /// Twist of the virtual object, `[vx,vy,vz,wx,wy,wz]`; sent with the
+    /// next [`set_position`](Self::set_position) (call it first).
+    pub fn set_speed(&mut self, twist: &[f32; 6]) -> Result<()> {
+        self.check_open()?;
+        self.speed = conv::twist_from("speed", twist)?;
+        Ok(())
+    }
+
+    /// Pose of the virtual object, `[x,y,z,qx,qy,qz,qw]`: streams one
+    /// VprStream frame (pose + the last speed given). Not acknowledged.
+    pub fn set_position(&mut self, pose: &[f32; 7]) -> Result<()> {
+        self.check_open()?;
+        let pose: Pose = conv::pose_from("position", pose)?;
+        self.inner.send(
+            &Frame::VprStream {
+                pose,
+                twist: self.speed,
+            },
+            0,
+        )?;
+        Ok(())
+    }
+
+    fn with_answer<T>(&self, f: impl FnOnce(&Answer, &State) -> T) -> Result<T> {
+        self.check_open()?;
+        let st = self.inner.lock();
+        match &st.answer {
+            Some(a) => Ok(f(a, &st)),
+            None => Err(VirtError::NoData),
+        }
+    }
+
+    /// Handle pose `[x,y,z,qx,qy,qz,qw]` in the client's world frame.
+    pub fn get_position(&self) -> Result<[f32; 7]> {
+        self.with_answer(|a, _| conv::pose_to(&a.handle_pose))
+    }
+
+    /// Handle twist `[vx,vy,vz,wx,wy,wz]` (last AnswerTwist received).
+    pub fn get_speed(&self) -> Result<[f32; 6]> {
+        self.with_answer(|_, st| conv::twist_to(&st.twist))
+    }
+
+    /// Wrench to apply to the virtual object `[fx,fy,fz,tx,ty,tz]`.
+    pub fn get_force(&self) -> Result<[f32; 6]> {
+        self.with_answer(|a, _| conv::wrench_to(&a.coupling_wrench))
+    }
+
+    /// Raw `hap_core::vp::status` bits of the last answer.
+    pub fn get_status(&self) -> Result<u32> {
+        self.with_answer(|a, _| a.status)
+    }
+
+    pub fn get_power_on(&self) -> Result<bool> {
+        self.with_answer(|a, _| a.status & status::POWER_ON != 0)
+    }
+
+    pub fn get_dead_man(&self) -> Result<bool> {
+        self.with_answer(|a, _| a.status & status::DEAD_MAN != 0)
+    }
+
+    pub fn get_emergency_stop(&self) -> Result<bool> {
+        self.with_answer(|a, _| a.status & status::EMERGENCY_STOP != 0)
+    }
+
+    /// `hap_core::vp::alarm` bits.
+    pub fn get_alarm(&self) -> Result<u32> {
+        self.with_answer(|a, _| a.alarms)
+    }
+
+    /// The last answer's servo cycle counter.
+    pub fn get_cycle(&self) -> Result<u32> {
+        self.with_answer(|a, _| a.cycle)
+    }
+
+    /// Block until an answer newer than the current one arrives, or timeout.
+    /// Returns true if one arrived.
+    pub fn wait_answer(&self, timeout: Duration) -> bool {
+        let deadline = Instant::now() + timeout;
+        let mut st = self.inner.lock();
+        let gen = st.answer_gen;
+        while st.answer_gen == gen {
+            let now = Instant::now();
+            if now >= deadline {
+                return false;
+            }
+            st = match self.inner.cond.wait_timeout(st, deadline - now) {
+                Ok((g, _)) => g,
+                Err(p) => p.into_inner().0,
+            };
+        }
+        true
+    }
+
+    /// Rate, loss and round-trip time measured so far.
+    pub fn link_stats(&self) -> LinkStats {
+        let st = self.inner.lock();
+        let mut s = st.stats;
+        let total = s.answers + s.lost;
+        s.loss_ratio = if total > 0 {
+            s.lost as f64 / total as f64
+        } else {
+            0.0
+        };
+        s.rtt_ms_mean = if st.rtt_n > 0 {
+            st.rtt_sum / st.rtt_n as f64
+        } else {
+            0.0
+        };
+        let el = st.window_start.elapsed().as_secs_f64();
+        if s.rate_hz == 0.0 && el > 0.05 {
+            s.rate_hz = st.window_count as f64 / el;
+        }
+        s
+    }
+
+    /// Close the session (CloseSession, acknowledged if the controller
+    /// answers in time) and stop the receiver thread. Idempotent.
+    pub fn close(&mut self) -> Result<()> {
+        if self.closed {
+            return Ok(());
+        }
+        let r = self.request(Frame::CloseSession);
+        self.shutdown();
+        match r {
+            Err(VirtError::Timeout(_)) | Ok(()) => Ok(()),
+            Err(e) => Err(e),
+        }
+    }
+
+    fn shutdown(&mut self) {
+        self.closed = true;
+        self.inner.stop.store(true, Ordering::SeqCst);
+        if let Some(h) = self.rx.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+impl Drop for VirtContext {
+    fn drop(&mut self) {
+        if !self.closed {
+            // Best effort: tell the controller, do not wait.
+            let _ = self.inner.send(&Frame::CloseSession, 0);
+            self.shutdown();
+        }
+    }
+}
+
+fn reason_name(reason: u32) -> String {
+    match reason {
+        ERROR_NO_SESSION => "no session".into(),
+        ERROR_REFUSED => "refused in the current state".into(),
+        r => match DecodeError::from_index(r as usize) {
+            Some(e) => e.name().into(),
+            None => format!("reason {r}"),
+        },
+    }
+}
+
+fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
+    let mut buf = [0u8; 2048];
+    while !inner.stop.load(Ordering::SeqCst) {
+        let n = match sock.recv(&mut buf) {
+            Ok(n) => n,
+            Err(_) => continue, // timeout, ICMP unreachable...: keep going
+        };
+        let (h, frame) = match decode(&buf[..n]) {
+            Ok(x) => x,
+            Err(_) => {
+                inner.lock().stats.decode_errors += 1;
+                continue;
+            }
+        };
+        let mut st = inner.lock();
+        match frame {
+            Frame::SessionAck {
+                client_nonce,
+                period_us,
+            } => {
+                if client_nonce == st.session_nonce {
+                    st.session_ack = Some((h.session, period_us));
+                    // A new session: controller sequence numbers restart.
+                    st.last_seq = None;
+                }
+            }
+            Frame::Ack { acked_seq, .. } => {
+                if st.replies.len() > 1024 {
+                    st.replies.clear();
+                }
+                st.replies.insert(acked_seq, Reply::Ack);
+            }
+            Frame::Error {
+                reason,
+                rejected_seq,
+            } => {
+                if st.replies.len() > 1024 {
+                    st.replies.clear();
+                }
+                st.replies.insert(rejected_seq, Reply::Error(reason));
+            }
+            Frame::Answer(_) | Frame::AnswerTwist(_) => {
+                if st.session_ack.is_none() {
+                    continue;
+                }
+                // Duplicate / stale / loss accounting on the controller's
+                // sequence numbers (one counter for all its frames).
+                if let Some(last) = st.last_seq {
+                    if h.seq == last {
+                        st.stats.duplicates += 1;
+                        continue;
+                    }
+                    if !seq_newer(h.seq, last) {
+                        st.stats.stale += 1;
+                        continue;
+                    }
+                    let gap = h.seq.wrapping_sub(last) as u64;
+                    if gap > 1 && gap < 1_000_000 {
+                        st.stats.lost += gap - 1;
+                    }
+                }
+                st.last_seq = Some(h.seq);
+                match frame {
+                    Frame::Answer(a) => {
+                        on_answer(&mut st, a);
+                    }
+                    Frame::AnswerTwist(t) => {
+                        st.twist = t.handle_twist;
+                        if let Some(a) = st.answer.as_mut() {
+                            a.status = t.status;
+                            a.alarms = t.alarms;
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            // Requests coming back to us: ignore.
+            _ => continue,
+        }
+        drop(st);
+        inner.cond.notify_all();
+    }
+}
+
+fn on_answer(st: &mut State, a: Answer) {
+    st.stats.answers += 1;
+    st.answer_gen += 1;
+    st.window_count += 1;
+    let el = st.window_start.elapsed();
+    if el >= Duration::from_millis(500) {
+        st.stats.rate_hz = st.window_count as f64 / el.as_secs_f64();
+        st.window_count = 0;
+        st.window_start = Instant::now();
+    }
+    if st.last_vpr_seq_seen != Some(a.vpr_seq) {
+        st.last_vpr_seq_seen = Some(a.vpr_seq);
+        let slot = st.sent_at[a.vpr_seq as usize % RTT_RING];
+        if slot.0 == a.vpr_seq {
+            if let Some(t) = slot.1 {
+                let rtt = t.elapsed().as_secs_f64() * 1e3;
+                st.stats.rtt_ms_last = rtt;
+                st.rtt_sum += rtt;
+                st.rtt_n += 1;
+                if rtt > st.stats.rtt_ms_max {
+                    st.stats.rtt_ms_max = rtt;
+                }
+                st.sent_at[a.vpr_seq as usize % RTT_RING].1 = None;
+            }
+        }
+    }
+    st.answer = Some(a);
+}
+
+/// Names of the frame types (for logs).
+pub fn frame_type_name(t: FrameType) -> &'static str {
+    t.name()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn addresses() {
+        assert_eq!(parse_address("127.0.0.1#5001").unwrap().port(), 5001);
+        assert_eq!(parse_address("127.0.0.1").unwrap().port(), 5000);
+        assert_eq!(parse_address("127.0.0.1:6000").unwrap().port(), 6000);
+        assert_eq!(parse_address("localhost#7").unwrap().port(), 7);
+        assert!(parse_address("").is_err());
+        assert!(parse_address("127.0.0.1#x").is_err());
+        assert!(parse_address("127.0.0.1#70000").is_err());
+        assert!(parse_address("#5000").is_err());
+        assert!(parse_address("127.0.0.1#0").is_err());
+    }
+
+    #[test]
+    fn error_codes_are_distinct() {
+        let all = [
+            VirtError::InvalidAddress(String::new()),
+            VirtError::Io(String::new()),
+            VirtError::Timeout("x"),
+            VirtError::Refused {
+                request: "x",
+                reason: 0,
+                name: String::new(),
+            },
+            VirtError::InvalidArgument(String::new()),
+            VirtError::NoData,
+            VirtError::Closed,
+            VirtError::NullPointer,
+        ];
+        let mut codes: Vec<i32> = all.iter().map(|e| e.code()).collect();
+        codes.sort();
+        codes.dedup();
+        assert_eq!(codes.len(), all.len());
+        for e in &all {
+            assert_ne!(VirtError::code_message(e.code()), "unknown error code");
+            assert!(!e.to_string().is_empty());
+        }
+    }
+}

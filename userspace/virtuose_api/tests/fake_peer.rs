@@ -1,0 +1,169 @@
+//! The library against the fake controller (hap-core frames over UDP).
+
+use std::time::Duration;
+
+use virtuose_api::fake_peer::{FakePeer, FakePeerConfig};
+use virtuose_api::{CommandType, IndexingMode, Options, VirtContext, VirtError};
+
+fn quick() -> Options {
+    Options {
+        reply_timeout: Duration::from_millis(100),
+        attempts: 2,
+    }
+}
+
+/// Stream a point mass coupled to the handle for `steps` ms; returns the
+/// final handle and object positions.
+fn run_coupling(vc: &mut VirtContext, steps: usize) -> ([f32; 7], [f32; 7]) {
+    let (dt, mass) = (0.001f32, 0.2f32);
+    let mut pos = [0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+    let mut speed = [0.0f32; 6];
+    let mut handle = [0.0f32; 7];
+    for _ in 0..steps {
+        vc.set_speed(&speed).unwrap();
+        vc.set_position(&pos).unwrap();
+        vc.wait_answer(Duration::from_millis(20));
+        let (Ok(h), Ok(f)) = (vc.get_position(), vc.get_force()) else {
+            continue;
+        };
+        handle = h;
+        for k in 0..3 {
+            speed[k] += f[k] / mass * dt;
+            speed[k] *= 0.995;
+            pos[k] += speed[k] * dt;
+        }
+    }
+    (handle, pos)
+}
+
+fn dist(a: &[f32; 7], b: &[f32; 7]) -> f32 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+#[test]
+fn session_configuration_and_coupling() {
+    let peer = FakePeer::start(FakePeerConfig::default()).unwrap();
+    let mut vc = VirtContext::open_with(&peer.address(), quick()).unwrap();
+    assert_ne!(vc.session_id(), 0);
+    assert_eq!(vc.get_position(), Err(VirtError::NoData));
+
+    vc.set_time_step(0.001).unwrap();
+    vc.set_base_frame(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+        .unwrap();
+    vc.set_observation_frame(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+        .unwrap();
+    vc.set_force_factor(1.0).unwrap();
+    vc.set_speed_factor(1.0).unwrap();
+    vc.set_indexing_mode(IndexingMode::All).unwrap();
+    vc.set_command_type(CommandType::VirtMech).unwrap();
+    vc.attach_vo(0.2, [0.001; 3]).unwrap();
+    vc.set_power_on(true).unwrap();
+
+    let (handle, obj) = run_coupling(&mut vc, 1500);
+    let d = dist(&handle, &obj);
+    assert!(
+        d < 0.02,
+        "object did not follow the handle: {handle:?} vs {obj:?}"
+    );
+    assert!(
+        handle[0].abs() > 1e-4 || handle[2].abs() > 1e-4,
+        "handle did not move"
+    );
+    assert!(vc.get_power_on().unwrap());
+    assert!(vc.get_dead_man().unwrap());
+    assert!(!vc.get_emergency_stop().unwrap());
+    assert_eq!(vc.get_alarm().unwrap(), 0);
+    let sp = vc.get_speed().unwrap();
+    assert!(sp.iter().any(|v| *v != 0.0), "no AnswerTwist seen");
+
+    let ls = vc.link_stats();
+    println!("link: {ls:?}");
+    assert!(ls.answers > 1000, "{ls:?}");
+    assert_eq!(ls.lost, 0);
+    assert_eq!(ls.period_us, 1000);
+    assert!(ls.rtt_ms_mean > 0.0 && ls.rtt_ms_mean < 50.0, "{ls:?}");
+    assert!(ls.rate_hz > 100.0, "{ls:?}");
+    vc.close().unwrap();
+    assert_eq!(vc.get_force(), Err(VirtError::Closed));
+    vc.close().unwrap(); // idempotent
+
+    let st = peer.stats();
+    assert_eq!(st.frames.get("close_session"), Some(&1));
+    assert!(st.frames.get("vpr_stream").copied().unwrap_or(0) >= 1500);
+    assert!(st.client.is_none());
+}
+
+#[test]
+fn loss_and_duplicates_are_measured() {
+    let peer = FakePeer::start(FakePeerConfig {
+        drop_every: 10,
+        duplicate_every: 7,
+        twist_every: 0,
+        ..Default::default()
+    })
+    .unwrap();
+    let mut vc = VirtContext::open_with(&peer.address(), quick()).unwrap();
+    for _ in 0..500 {
+        vc.set_position(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+            .unwrap();
+        vc.wait_answer(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(50));
+    let ls = vc.link_stats();
+    println!("link: {ls:?}");
+    assert!((45..=55).contains(&ls.lost), "{ls:?}");
+    assert!(ls.duplicates >= 50, "{ls:?}");
+    assert!(ls.loss_ratio > 0.08 && ls.loss_ratio < 0.12, "{ls:?}");
+}
+
+#[test]
+fn second_client_is_refused_and_times_out() {
+    let peer = FakePeer::start(FakePeerConfig::default()).unwrap();
+    let _first = VirtContext::open_with(&peer.address(), quick()).unwrap();
+    let second = VirtContext::open_with(&peer.address(), quick());
+    assert!(
+        matches!(second, Err(VirtError::Timeout("open_session"))),
+        "{:?}",
+        second.err()
+    );
+    assert!(peer.stats().stray >= 1);
+}
+
+#[test]
+fn silent_controller_times_out_and_bad_arguments_are_refused() {
+    let silent = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let addr = format!("127.0.0.1#{}", silent.local_addr().unwrap().port());
+    let t = std::time::Instant::now();
+    let r = VirtContext::open_with(&addr, quick());
+    assert!(matches!(r, Err(VirtError::Timeout(_))));
+    assert!(t.elapsed() < Duration::from_secs(2));
+    assert!(matches!(
+        VirtContext::open("no port#x"),
+        Err(VirtError::InvalidAddress(_))
+    ));
+
+    let peer = FakePeer::start(FakePeerConfig::default()).unwrap();
+    let mut vc = VirtContext::open_with(&peer.address(), quick()).unwrap();
+    assert!(matches!(
+        vc.set_time_step(0.0),
+        Err(VirtError::InvalidArgument(_))
+    ));
+    assert!(matches!(
+        vc.set_force_factor(-1.0),
+        Err(VirtError::InvalidArgument(_))
+    ));
+    assert!(matches!(
+        vc.attach_vo(f32::NAN, [0.0; 3]),
+        Err(VirtError::InvalidArgument(_))
+    ));
+    assert!(matches!(
+        vc.set_position(&[0.0; 7]),
+        Err(VirtError::InvalidArgument(_))
+    ));
+    assert!(matches!(
+        vc.set_speed(&[f32::NAN; 6]),
+        Err(VirtError::InvalidArgument(_))
+    ));
+    let e = vc.set_time_step(2.0).unwrap_err();
+    assert!(e.to_string().contains("time step"), "{e}");
+}
