@@ -1,0 +1,124 @@
+#!/usr/bin/env bash
+# Boot the hapticctrl test kernel in QEMU with the module and run one in-guest
+# test script; exit with its status. The guest log is kept.
+#   scripts/qemu-run.sh [options] TEST_SCRIPT [ARG ...]
+# Options:
+#   --debug             use the debug kernel variant (lockdep, atomic-sleep checks)
+#   --icount            deterministic guest time: -icount shift=0,align=off,sleep=off -smp 1
+#   --smp N             vCPUs (default 2; forced to 1 with --icount)
+#   --timeout S         kill the guest after S seconds (default 120): a hang fails
+#   --udp HOST:GUEST    forward UDP 127.0.0.1:HOST to the guest's port GUEST
+#   --log FILE          keep the guest log there (default build/logs/<test>.log)
+#   --extra SRC:DST     add a file to the initramfs (repeatable)
+#   --accel tcg|kvm     force the accelerator (default: KVM if a probe boot works)
+#   --background        start the guest and return; prints "PID LOG" (for host-side tests)
+# ARGs are passed to the test script (comma-free words).
+set -euo pipefail
+HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+. "$HERE/lib.sh"
+
+variant=""; icount=0; smp=2; timeout_s=120; udp=""; log=""; accel=${HAP_ACCEL:-}; background=0
+extras=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --debug) variant=debug ;;
+    --icount) icount=1 ;;
+    --smp) smp=$2; shift ;;
+    --timeout) timeout_s=$2; shift ;;
+    --udp) udp=$2; shift ;;
+    --log) log=$2; shift ;;
+    --extra) extras+=("$2"); shift ;;
+    --accel) accel=$2; shift ;;
+    --background) background=1 ;;
+    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
+    --) shift; break ;;
+    -*) die "unknown option $1 (see --help)" ;;
+    *) break ;;
+  esac
+  shift
+done
+test_script=${1:?usage: qemu-run.sh [options] TEST_SCRIPT [ARG ...] (see --help)}
+shift
+[ -f "$test_script" ] || die "no such test script: $test_script"
+args=$(IFS=,; echo "$*")
+
+KDIR=$(bash "$HERE/build-kernel.sh" ${variant:+--$variant})
+ko="$HAP_ROOT/build/${variant:-base}/module/hapticctrl.ko"
+[ -f "$ko" ] || die "module not built: run 'make${variant:+ DEBUG=1}'"
+name=$(basename "$test_script" .sh)
+mkdir -p "$HAP_ROOT/build/logs"
+log=${log:-$HAP_ROOT/build/logs/$name${variant:+-$variant}.log}
+initrd=$(mktemp --suffix=.cpio.gz)
+trap 'rm -f "$initrd"' EXIT
+extra_args=()
+for e in "${extras[@]+"${extras[@]}"}"; do extra_args+=("$e"); done
+bash "$HERE/mkinitramfs.sh" "$initrd" "$ko" "$test_script" "${extra_args[@]+"${extra_args[@]}"}"
+
+# Accelerator: KVM only if a probe boot works on this machine (cached).
+probe_kvm() {
+  local cache="$HAP_CACHE/kvm-probe-$(uname -r)"
+  if [ -f "$cache" ]; then cat "$cache"; return; fi
+  local res=tcg
+  if [ -w /dev/kvm ]; then
+    local pinit; pinit=$(mktemp --suffix=.cpio.gz)
+    printf '#!/bin/sh\necho HAP-KVM-PROBE-OK\npoweroff -f\n' >"$pinit.sh"
+    bash "$HERE/mkinitramfs.sh" "$pinit" "$ko" "$pinit.sh" 2>/dev/null
+    if timeout 25 qemu-system-x86_64 -enable-kvm -cpu host -m 256 -nographic -no-reboot -nodefaults \
+        -serial stdio -kernel "$KDIR/arch/x86/boot/bzImage" -initrd "$pinit" \
+        -append "console=ttyS0 panic=-1 rdinit=/init quiet" 2>/dev/null | grep -q HAP-KVM-PROBE-OK; then
+      res=kvm
+    fi
+    rm -f "$pinit" "$pinit.sh"
+  fi
+  echo "$res" >"$cache"; echo "$res"
+}
+[ -n "$accel" ] || accel=$(probe_kvm)
+qemu=(qemu-system-x86_64 -m 512 -nographic -no-reboot -nodefaults -serial stdio
+  -kernel "$KDIR/arch/x86/boot/bzImage" -initrd "$initrd")
+mode="$accel"
+if [ "$accel" = kvm ]; then
+  qemu+=(-enable-kvm -cpu host -smp "$smp")
+elif [ "$icount" = 1 ]; then
+  qemu+=(-accel tcg -icount shift=0,align=off,sleep=off -smp 1); mode="tcg-icount"
+else
+  qemu+=(-accel tcg,thread=multi -smp "$smp")
+fi
+if [ -n "$udp" ]; then
+  qemu+=(-nic "user,model=virtio-net-pci,hostfwd=udp:127.0.0.1:${udp%%:*}-:${udp#*:}")
+fi
+append="console=ttyS0 panic=-1 rdinit=/init loglevel=6 hap.mode=$mode"
+[ -n "$args" ] && append="$append hap.args=$args"
+qemu+=(-append "$append")
+log "booting $name (${variant:-base} kernel, accel=$mode${udp:+, udp $udp}); log: $log"
+
+if [ "$background" = 1 ]; then
+  trap - EXIT
+  ( "${qemu[@]}" >"$log" 2>&1; rm -f "$initrd" ) &
+  echo "$! $log"
+  exit 0
+fi
+
+start=$(date +%s)
+set +e
+timeout --foreground -k 5 "$timeout_s" "${qemu[@]}" 2>&1 | tee "$log" | sed -u -n -e '/^HAPTEST/p' -e '/^\(ok\|not ok\|PASS\|FAIL\|#\|--\) /p' -e '/passed, [0-9]* failed/p'
+qrc=${PIPESTATUS[0]}
+set -e
+elapsed=$(( $(date +%s) - start ))
+rc=$(sed -n 's/.*HAPTEST-RESULT rc=\([0-9]*\).*/\1/p' "$log" | tail -1)
+problems=$(grep -n -E 'Kernel panic|Oops|WARNING:|BUG:|Call Trace|possible (circular|recursive) locking|sleeping function called from invalid context|general protection fault|KASAN|UBSAN|rust_panic|panicked at' "$log" || true)
+if [ "$qrc" = 124 ] || [ "$qrc" = 137 ]; then
+  echo "qemu-run: $name TIMED OUT after ${timeout_s}s (accel=$mode). Last lines of $log:" >&2
+  tail -40 "$log" >&2; exit 1
+fi
+if [ -n "$problems" ]; then
+  echo "qemu-run: $name: kernel problems in the guest log ($log):" >&2
+  echo "$problems" | head -20 >&2
+  grep -n -A30 -E 'WARNING:|BUG:|Oops|panic' "$log" | head -80 >&2
+  exit 1
+fi
+if [ -z "$rc" ]; then
+  echo "qemu-run: $name: the guest ended without a result (crash?). Last lines of $log:" >&2
+  tail -40 "$log" >&2; exit 1
+fi
+log "$name finished in ${elapsed}s with rc=$rc (accel=$mode)"
+exit "$rc"

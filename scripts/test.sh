@@ -1,0 +1,79 @@
+#!/usr/bin/env bash
+# Run all of hapticctrl's tests: set-up (idempotent), host tests (cargo test,
+# fmt, clippy), the module build with its symbol check, and the QEMU suite.
+# Prints "N passed, N failed" per part and a total at the end.
+#   scripts/test.sh [--host-only | --qemu-only] [--debug-kernel]
+set -uo pipefail
+HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+. "$HERE/lib.sh"
+cd "$HAP_ROOT"
+
+host=1; qemu=1; debug=0
+for a in "$@"; do
+  case "$a" in
+    --host-only) qemu=0 ;;
+    --qemu-only) host=0 ;;
+    --debug-kernel) debug=1 ;;
+    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
+    *) die "unknown argument '$a' (try --help)" ;;
+  esac
+done
+
+t_start=$(date +%s)
+total_pass=0; total_fail=0; parts=()
+add() { total_pass=$((total_pass + $2)); total_fail=$((total_fail + $3)); parts+=("$1: $2 passed, $3 failed"); }
+
+bash "$HERE/setup-toolchain.sh" || die "toolchain set-up failed"
+
+if [ "$host" = 1 ]; then
+  log "host tests: cargo test --workspace (userspace/)"
+  out=$(mktemp)
+  (cd userspace && cargo test --workspace --color never 2>&1) | tee "$out"
+  rc=${PIPESTATUS[0]}
+  p=$(grep -E '^test result:' "$out" | sed -E 's/.* ([0-9]+) passed; ([0-9]+) failed.*/\1/' | paste -sd+ | bc)
+  f=$(grep -E '^test result:' "$out" | sed -E 's/.* ([0-9]+) passed; ([0-9]+) failed.*/\2/' | paste -sd+ | bc)
+  p=${p:-0}; f=${f:-0}
+  [ "$rc" != 0 ] && [ "$f" = 0 ] && f=1
+  add "cargo test" "$p" "$f"
+  rm -f "$out"
+
+  lint_p=0; lint_f=0
+  if (cd userspace && cargo fmt --all -- --check); then lint_p=$((lint_p + 1)); else lint_f=$((lint_f + 1)); echo "FAIL: cargo fmt --check"; fi
+  if (cd userspace && cargo clippy --workspace --all-targets --color never -q -- -D warnings); then lint_p=$((lint_p + 1)); else lint_f=$((lint_f + 1)); echo "FAIL: cargo clippy -D warnings"; fi
+  if make -s rustfmtcheck >/dev/null; then lint_p=$((lint_p + 1)); else lint_f=$((lint_f + 1)); echo "FAIL: rustfmt --check on module/"; fi
+  add "lint" "$lint_p" "$lint_f"
+fi
+
+if [ "$qemu" = 1 ]; then
+  build_p=0; build_f=0
+  log "building the test kernel (cached) and the module"
+  if make -s; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: module build or symbol check"; fi
+  if [ -x "$HERE/build-userspace-static.sh" ]; then
+    if bash "$HERE/build-userspace-static.sh"; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: static userspace build"; fi
+  fi
+  add "build" "$build_p" "$build_f"
+  if [ "$build_f" = 0 ]; then
+    out=$(mktemp)
+    bash tests/run-qemu-suite.sh | tee "$out"
+    line=$(grep -E '^qemu: [0-9]+ passed' "$out" | tail -1)
+    add "qemu suite" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+    rm -f "$out"
+    if [ "$debug" = 1 ]; then
+      if make -s DEBUG=1; then
+        out=$(mktemp)
+        bash tests/run-qemu-suite.sh --debug | tee "$out"
+        line=$(grep -E '^qemu: [0-9]+ passed' "$out" | tail -1)
+        add "qemu suite (debug kernel)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+        rm -f "$out"
+      else
+        add "debug build" 0 1
+      fi
+    fi
+  fi
+fi
+
+echo
+echo "=== hapticctrl test summary ($(( $(date +%s) - t_start )) s)"
+for p in "${parts[@]}"; do echo "  $p"; done
+echo "all: $total_pass passed, $total_fail failed"
+[ "$total_fail" = 0 ]

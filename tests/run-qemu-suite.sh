@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Run the QEMU suite: every tests/qemu/NN-*.sh boots its own guest with the
+# options on its "# qemu:" line. Prints per-test and total "N passed, N failed".
+#   tests/run-qemu-suite.sh [--debug] [PATTERN]
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+variant_flag=""; pattern=""
+for a in "$@"; do
+  case "$a" in
+    --debug) variant_flag=--debug ;;
+    *) pattern=$a ;;
+  esac
+done
+total_pass=0; total_fail=0; failed_tests=()
+for t in "$ROOT"/tests/qemu/[0-9][0-9]-*.sh; do
+  name=$(basename "$t" .sh)
+  [ -n "$pattern" ] && [[ "$name" != *$pattern* ]] && continue
+  opts=$(sed -n 's/^# qemu: *//p' "$t" | head -1)
+  if [ -n "$variant_flag" ] && grep -q '^# qemu-debug: skip' "$t"; then continue; fi
+  echo "=== $name ($opts $variant_flag)"
+  out=$(mktemp)
+  # shellcheck disable=SC2086
+  bash "$ROOT/scripts/qemu-run.sh" $variant_flag $opts "$t" 2>&1 | tee "$out"
+  rc=${PIPESTATUS[0]}
+  line=$(grep -E '^[0-9]+ passed, [0-9]+ failed' "$out" | tail -1)
+  p=$(echo "$line" | awk '{print $1}'); f=$(echo "$line" | awk '{print $3}')
+  p=${p:-0}; f=${f:-0}
+  if [ "$rc" != 0 ] && [ "$f" = 0 ]; then f=1; fi   # crash, hang or kernel warning
+  total_pass=$((total_pass + p)); total_fail=$((total_fail + f))
+  [ "$rc" = 0 ] || failed_tests+=("$name")
+  rm -f "$out"
+done
+echo "=== QEMU suite${variant_flag:+ (debug kernel)}: ${#failed_tests[@]} test file(s) failed${failed_tests[*]:+: ${failed_tests[*]}}"
+echo "qemu: $total_pass passed, $total_fail failed"
+[ "$total_fail" = 0 ] && [ ${#failed_tests[@]} = 0 ]
