@@ -18,6 +18,7 @@ pub mod crc;
 pub mod effort;
 pub mod fixed;
 pub mod io;
+pub mod proto_in;
 pub mod proto_synchro;
 pub mod protocol;
 pub mod servo;

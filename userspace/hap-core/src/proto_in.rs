@@ -1,0 +1,448 @@
+//! PROTO_IN's logic (spec §3.3.1.2): what one frame received on rtf_in does.
+//!
+//! The kernel's PROTO_IN thread takes the protocol lock (`mtx_proto`), calls
+//! [`ProtoIn::handle`] with the frame's bytes, and carries out the returned
+//! [`Outcome`]: publish the new configuration (under the configuration
+//! rwsem), forward a power request, queue the reply on rtf_out, count the
+//! reject. The VPr shared memory lives here, so SERVO's try-lock of the same
+//! lock reads it with [`ProtoIn::vpr`].
+//!
+//! Session rules:
+//! - `OpenSession` always opens a new session (a new client, or the same one
+//!   after a restart): a fresh session id, an invalid VPr (the coupling fades
+//!   out until the first `VprStream`), the default configuration, and a
+//!   `SessionAck` echoing the client's nonce with the servo period.
+//! - Every other request must carry the current session id, else it is
+//!   rejected (`NoSession`) and answered with `Error(ERROR_NO_SESSION)`.
+//! - Sequence numbers must grow (RFC 1982 order) within a session: a
+//!   duplicate or older frame is dropped as `Stale`, not applied twice.
+//! - Frames only the controller sends (answers, acks, errors) are rejected
+//!   as `NotARequest`.
+//! - `CTRL_ACK_REQUEST` in the control word asks for an `Ack` reply.
+//!
+//! Malformed bytes never reach the VPr or the configuration: they are
+//! rejected with the decoder's typed reason and get no reply (no
+//! amplification of garbage).
+
+use super::config::ServoConfig;
+use super::protocol::{
+    apply_to_config, decode, power_request, vpr_accept, vpr_from, DecodeError, Frame, FrameHeader,
+    CTRL_ACK_REQUEST, ERROR_NO_SESSION,
+};
+use super::vp::VpReceived;
+
+/// Why PROTO_IN dropped a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reject {
+    /// The bytes are not a valid frame.
+    Decode(DecodeError),
+    /// A request without the current session id (or with no session open).
+    NoSession,
+    /// A sequence number not newer than the last accepted one.
+    Stale,
+    /// A frame type only the controller sends.
+    NotARequest,
+}
+
+impl Reject {
+    /// Number of PROTO_IN-level reasons (after the decoder's).
+    pub const PROTOCOL_COUNT: usize = 3;
+    /// Names of the PROTO_IN-level reasons, indexed by [`Reject::protocol_index`].
+    pub const PROTOCOL_NAMES: [&'static str; Reject::PROTOCOL_COUNT] =
+        ["no_session", "stale_seq", "not_a_request"];
+
+    /// Index among the PROTO_IN-level reasons; `None` for decode errors.
+    pub const fn protocol_index(self) -> Option<usize> {
+        match self {
+            Reject::Decode(_) => None,
+            Reject::NoSession => Some(0),
+            Reject::Stale => Some(1),
+            Reject::NotARequest => Some(2),
+        }
+    }
+}
+
+/// What the kernel must do after [`ProtoIn::handle`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct Outcome {
+    /// The frame was accepted and applied.
+    pub accepted: bool,
+    /// A reply to queue on rtf_out (the caller fills in seq and timestamp;
+    /// the session is [`ProtoIn::session`]).
+    pub reply: Option<Frame>,
+    /// The configuration changed: publish [`ProtoIn::config`].
+    pub config_changed: bool,
+    /// A power request for the arm.
+    pub power: Option<bool>,
+    /// The VPr shared memory was replaced.
+    pub vpr_updated: bool,
+    /// A session was opened (true) or closed (false) by this frame.
+    pub session_change: Option<bool>,
+    /// Why the frame was dropped.
+    pub rejected: Option<Reject>,
+}
+
+/// Counters kept by PROTO_IN.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct ProtoCounters {
+    pub accepted: u64,
+    pub decode_rejects: [u64; DecodeError::COUNT],
+    pub protocol_rejects: [u64; Reject::PROTOCOL_COUNT],
+    pub vpr_frames: u64,
+    pub config_frames: u64,
+    pub sessions_opened: u64,
+    pub replies: u64,
+}
+
+impl ProtoCounters {
+    /// All rejected frames.
+    pub fn rejected_total(&self) -> u64 {
+        let d = self.decode_rejects.iter().fold(0u64, |a, b| a.saturating_add(*b));
+        self.protocol_rejects.iter().fold(d, |a, b| a.saturating_add(*b))
+    }
+}
+
+/// PROTO_IN's state: the session, the VPr shared memory and the shadow of the
+/// configuration (PROTO_IN is its only writer).
+#[derive(Clone, Debug)]
+pub struct ProtoIn {
+    session: u16,
+    last_session: u16,
+    last_seq: u32,
+    seq_valid: bool,
+    vpr: VpReceived,
+    config: ServoConfig,
+    counters: ProtoCounters,
+}
+
+impl Default for ProtoIn {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl ProtoIn {
+    pub fn new() -> Self {
+        ProtoIn {
+            session: 0,
+            last_session: 0,
+            last_seq: 0,
+            seq_valid: false,
+            vpr: VpReceived::default(),
+            config: ServoConfig::default(),
+            counters: ProtoCounters::default(),
+        }
+    }
+
+    /// The open session's id (0: none).
+    pub const fn session(&self) -> u16 {
+        self.session
+    }
+
+    /// The VPr shared memory.
+    pub const fn vpr(&self) -> &VpReceived {
+        &self.vpr
+    }
+
+    /// The configuration as last set by the client.
+    pub const fn config(&self) -> &ServoConfig {
+        &self.config
+    }
+
+    pub const fn counters(&self) -> &ProtoCounters {
+        &self.counters
+    }
+
+    /// Close the protocol (fail-safe step 3, or CloseSession): no session,
+    /// VPr invalid, configuration back to its safe default.
+    pub fn close(&mut self) {
+        self.session = 0;
+        self.seq_valid = false;
+        self.vpr = VpReceived::default();
+        self.config = ServoConfig::default();
+    }
+
+    /// Handle one frame received on rtf_in at servo cycle `now_cycle`;
+    /// `period_us` is reported to new sessions.
+    pub fn handle(&mut self, bytes: &[u8], now_cycle: u64, period_us: u32) -> Outcome {
+        let mut out = Outcome::default();
+        let (header, frame) = match decode(bytes) {
+            Ok(hf) => hf,
+            Err(e) => {
+                if let Some(n) = self.counters.decode_rejects.get_mut(e.reason_index()) {
+                    *n = n.saturating_add(1);
+                }
+                out.rejected = Some(Reject::Decode(e));
+                return out;
+            }
+        };
+        let ty = frame.frame_type();
+        if !ty.is_request() {
+            return self.reject(out, Reject::NotARequest);
+        }
+        if let Frame::OpenSession { client_nonce } = frame {
+            self.close();
+            self.last_session = self.last_session.wrapping_add(1);
+            if self.last_session == 0 {
+                self.last_session = 1;
+            }
+            self.session = self.last_session;
+            self.last_seq = header.seq;
+            self.seq_valid = true;
+            self.counters.sessions_opened = self.counters.sessions_opened.saturating_add(1);
+            self.counters.accepted = self.counters.accepted.saturating_add(1);
+            out.accepted = true;
+            out.config_changed = true;
+            out.session_change = Some(true);
+            out.reply = Some(Frame::SessionAck {
+                client_nonce,
+                period_us,
+            });
+            self.counters.replies = self.counters.replies.saturating_add(1);
+            return out;
+        }
+        if self.session == 0 || header.session != self.session {
+            out = self.reject(out, Reject::NoSession);
+            out.reply = Some(Frame::Error {
+                reason: ERROR_NO_SESSION,
+                rejected_seq: header.seq,
+            });
+            self.counters.replies = self.counters.replies.saturating_add(1);
+            return out;
+        }
+        if self.seq_valid && !super::protocol::seq_newer(header.seq, self.last_seq) {
+            return self.reject(out, Reject::Stale);
+        }
+        self.last_seq = header.seq;
+        self.seq_valid = true;
+        self.apply(&header, &frame, now_cycle, &mut out);
+        self.counters.accepted = self.counters.accepted.saturating_add(1);
+        out.accepted = true;
+        if header.control & CTRL_ACK_REQUEST != 0 && out.reply.is_none() {
+            out.reply = Some(Frame::Ack {
+                acked_type: ty,
+                acked_seq: header.seq,
+            });
+        }
+        if out.reply.is_some() {
+            self.counters.replies = self.counters.replies.saturating_add(1);
+        }
+        out
+    }
+
+    fn apply(&mut self, header: &FrameHeader, frame: &Frame, now_cycle: u64, out: &mut Outcome) {
+        if let Frame::CloseSession = frame {
+            // Ack before closing: the reply still carries the session id.
+            if header.control & CTRL_ACK_REQUEST != 0 {
+                out.reply = Some(Frame::Ack {
+                    acked_type: frame.frame_type(),
+                    acked_seq: header.seq,
+                });
+            }
+            self.close();
+            out.config_changed = true;
+            out.session_change = Some(false);
+            return;
+        }
+        if apply_to_config(frame, &mut self.config) {
+            self.counters.config_frames = self.counters.config_frames.saturating_add(1);
+            out.config_changed = true;
+            return;
+        }
+        if let Some(on) = power_request(frame) {
+            out.power = Some(on);
+            return;
+        }
+        if let Some(vpr) = vpr_from(header, frame, now_cycle) {
+            self.counters.vpr_frames = self.counters.vpr_frames.saturating_add(1);
+            if vpr_accept(&self.vpr, vpr.seq) {
+                self.vpr = vpr;
+                out.vpr_updated = true;
+            }
+        }
+    }
+
+    fn reject(&mut self, mut out: Outcome, why: Reject) -> Outcome {
+        if let Some(i) = why.protocol_index() {
+            if let Some(n) = self.counters.protocol_rejects.get_mut(i) {
+                *n = n.saturating_add(1);
+            }
+        }
+        out.rejected = Some(why);
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::config::CommandType;
+    use super::super::fixed::{Fx, Pose, Twist};
+    use super::super::protocol::{encode, FrameType, MAX_FRAME_LEN};
+    use super::*;
+
+    fn bytes(session: u16, seq: u32, control: u16, f: &Frame) -> ([u8; MAX_FRAME_LEN], usize) {
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let h = FrameHeader {
+            control,
+            session,
+            seq,
+            timestamp_us: seq.wrapping_mul(1000),
+        };
+        let n = encode(&h, f, &mut buf);
+        (buf, n)
+    }
+
+    fn handle(p: &mut ProtoIn, session: u16, seq: u32, control: u16, f: &Frame) -> Outcome {
+        let (b, n) = bytes(session, seq, control, f);
+        p.handle(&b[..n], 7, 1000)
+    }
+
+    fn open(p: &mut ProtoIn) -> u16 {
+        let o = handle(p, 0, 1, 0, &Frame::OpenSession { client_nonce: 42 });
+        assert!(o.accepted);
+        assert_eq!(
+            o.reply,
+            Some(Frame::SessionAck {
+                client_nonce: 42,
+                period_us: 1000
+            })
+        );
+        assert_eq!(o.session_change, Some(true));
+        p.session()
+    }
+
+    fn vpr_frame(x: i32) -> Frame {
+        let mut pose = Pose::default();
+        pose.position.x = Fx::from_ratio(i64::from(x), 100);
+        Frame::VprStream {
+            pose,
+            twist: Twist::default(),
+        }
+    }
+
+    #[test]
+    fn garbage_is_rejected_with_reason_and_no_reply() {
+        let mut p = ProtoIn::new();
+        let o = p.handle(b"not a frame at all, but long enough", 0, 1000);
+        assert!(!o.accepted);
+        assert!(o.reply.is_none());
+        assert!(matches!(o.rejected, Some(Reject::Decode(_))));
+        assert_eq!(p.counters().rejected_total(), 1);
+        let o = p.handle(&[], 0, 1000);
+        assert_eq!(o.rejected, Some(Reject::Decode(DecodeError::TooShort)));
+        assert!(!p.vpr().valid);
+    }
+
+    #[test]
+    fn requests_need_the_session() {
+        let mut p = ProtoIn::new();
+        let o = handle(&mut p, 0, 1, 0, &vpr_frame(10));
+        assert_eq!(o.rejected, Some(Reject::NoSession));
+        assert!(matches!(o.reply, Some(Frame::Error { reason: ERROR_NO_SESSION, rejected_seq: 1 })));
+        assert!(!p.vpr().valid);
+        let s = open(&mut p);
+        assert_ne!(s, 0);
+        let o = handle(&mut p, s.wrapping_add(1), 2, 0, &vpr_frame(10));
+        assert_eq!(o.rejected, Some(Reject::NoSession));
+        let o = handle(&mut p, s, 2, 0, &vpr_frame(10));
+        assert!(o.accepted && o.vpr_updated);
+        assert!(p.vpr().valid);
+        assert_eq!(p.vpr().seq, 2);
+        assert_eq!(p.vpr().received_cycle, 7);
+    }
+
+    #[test]
+    fn stale_and_duplicate_frames_are_dropped() {
+        let mut p = ProtoIn::new();
+        let s = open(&mut p);
+        assert!(handle(&mut p, s, 10, 0, &vpr_frame(1)).vpr_updated);
+        let dup = handle(&mut p, s, 10, 0, &vpr_frame(2));
+        assert_eq!(dup.rejected, Some(Reject::Stale));
+        let old = handle(&mut p, s, 9, 0, &vpr_frame(3));
+        assert_eq!(old.rejected, Some(Reject::Stale));
+        assert_eq!(p.vpr().pose.position.x, Fx::from_ratio(1, 100));
+        // Wrap-around is newer.
+        let mut p = ProtoIn::new();
+        let o = handle(&mut p, 0, u32::MAX, 0, &Frame::OpenSession { client_nonce: 1 });
+        assert!(o.accepted);
+        let s = p.session();
+        assert!(handle(&mut p, s, 0, 0, &vpr_frame(5)).vpr_updated);
+    }
+
+    #[test]
+    fn config_power_and_acks() {
+        let mut p = ProtoIn::new();
+        let s = open(&mut p);
+        let o = handle(&mut p, s, 2, CTRL_ACK_REQUEST, &Frame::SetCommandType(CommandType::Impedance));
+        assert!(o.config_changed);
+        assert_eq!(p.config().command_type, CommandType::Impedance);
+        assert_eq!(
+            o.reply,
+            Some(Frame::Ack {
+                acked_type: FrameType::SetCommandType,
+                acked_seq: 2
+            })
+        );
+        let o = handle(&mut p, s, 3, 0, &Frame::PowerRequest(true));
+        assert_eq!(o.power, Some(true));
+        assert!(o.reply.is_none());
+        // A new session resets the configuration.
+        let s2 = open(&mut p);
+        assert_ne!(s2, s);
+        assert_eq!(p.config().command_type, CommandType::None);
+    }
+
+    #[test]
+    fn controller_frames_are_not_requests() {
+        let mut p = ProtoIn::new();
+        let s = open(&mut p);
+        let o = handle(&mut p, s, 2, 0, &Frame::Ack { acked_type: FrameType::Ack, acked_seq: 0 });
+        assert_eq!(o.rejected, Some(Reject::NotARequest));
+    }
+
+    #[test]
+    fn close_session_and_fail_safe_close() {
+        let mut p = ProtoIn::new();
+        let s = open(&mut p);
+        handle(&mut p, s, 2, 0, &vpr_frame(1));
+        let o = handle(&mut p, s, 3, CTRL_ACK_REQUEST, &Frame::CloseSession);
+        assert_eq!(o.session_change, Some(false));
+        assert!(matches!(o.reply, Some(Frame::Ack { .. })));
+        assert_eq!(p.session(), 0);
+        assert!(!p.vpr().valid);
+        let s = open(&mut p);
+        handle(&mut p, s, 2, 0, &vpr_frame(1));
+        p.close();
+        assert_eq!(p.session(), 0);
+        assert!(!p.vpr().valid);
+        assert_eq!(handle(&mut p, s, 3, 0, &vpr_frame(1)).rejected, Some(Reject::NoSession));
+    }
+
+    #[test]
+    fn random_bytes_never_panic_nor_touch_vpr() {
+        let mut p = ProtoIn::new();
+        let s = open(&mut p);
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for i in 0..20_000u32 {
+            let mut buf = [0u8; 96];
+            let len = (i as usize) % 97;
+            for b in buf.iter_mut().take(len) {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                *b = x as u8;
+            }
+            if i % 3 == 0 && len >= 4 {
+                buf[0] = b'H';
+                buf[1] = b'C';
+                buf[2] = 1;
+            }
+            let o = p.handle(&buf[..len], 0, 1000);
+            assert!(!o.vpr_updated);
+            assert!(!o.accepted);
+        }
+        assert_eq!(p.session(), s);
+        assert!(!p.vpr().valid);
+        assert_eq!(p.counters().rejected_total(), 20_000);
+    }
+}
