@@ -1,0 +1,180 @@
+//! The hex dumps in Documentation/protocol.md are generated here and must
+//! match the document. Regenerate them with:
+//!
+//!   HAP_WRITE_DOC=1 cargo test -p hap-core --test protocol_doc
+
+use std::fmt::Write;
+
+use hap_core::config::{CommandType, IndexingMode, VirtualObjectParams};
+use hap_core::fixed::{Fx, Pose, Quat, Twist, Vec3, Wrench};
+use hap_core::protocol::*;
+use hap_core::vp::{alarm, status};
+
+const BEGIN: &str = "<!-- BEGIN GENERATED DUMPS (tests/protocol_doc.rs) -->\n";
+const END: &str = "<!-- END GENERATED DUMPS -->";
+
+fn fx(v: f64) -> Fx {
+    Fx((v * 4294967296.0).round() as i64)
+}
+
+fn v3(x: f64, y: f64, z: f64) -> Vec3 {
+    Vec3 {
+        x: fx(x),
+        y: fx(y),
+        z: fx(z),
+    }
+}
+
+fn samples() -> Vec<(FrameHeader, Frame)> {
+    let h = |seq: u32, session: u16| FrameHeader {
+        control: 0,
+        session,
+        seq,
+        timestamp_us: 1_000_000 + seq,
+    };
+    let pose = Pose {
+        position: v3(0.1, -0.05, 0.3),
+        // 90° about z: (0, 0, sin 45°, cos 45°)
+        orientation: Quat {
+            x: Fx::ZERO,
+            y: Fx::ZERO,
+            z: fx(0.5f64.sqrt()),
+            w: fx(0.5f64.sqrt()),
+        },
+    };
+    let twist = Twist {
+        linear: v3(0.01, 0.0, -0.02),
+        angular: v3(0.0, 0.0, 0.5),
+    };
+    let wrench = Wrench {
+        force: v3(1.5, -2.0, 0.25),
+        torque: v3(0.0, 0.125, 0.0),
+    };
+    vec![
+        (
+            FrameHeader {
+                control: CTRL_ACK_REQUEST,
+                ..h(1, 0)
+            },
+            Frame::OpenSession {
+                client_nonce: 0x1234_5678,
+            },
+        ),
+        (h(2, 7), Frame::CloseSession),
+        (
+            FrameHeader {
+                control: CTRL_ACK_REQUEST,
+                ..h(3, 7)
+            },
+            Frame::SetBaseFrame(pose),
+        ),
+        (h(4, 7), Frame::SetObservationFrame(Pose::default())),
+        (
+            h(5, 7),
+            Frame::SetFactors {
+                force: fx(1.0),
+                speed: fx(0.5),
+            },
+        ),
+        (h(6, 7), Frame::SetTimeStep(fx(0.001))),
+        (h(7, 7), Frame::SetCommandType(CommandType::Impedance)),
+        (h(8, 7), Frame::SetIndexingMode(IndexingMode::Trans)),
+        (
+            h(9, 7),
+            Frame::AttachVirtualObject(VirtualObjectParams {
+                mass: fx(0.5),
+                inertia: v3(0.001, 0.001, 0.002),
+            }),
+        ),
+        (h(10, 7), Frame::DetachVirtualObject),
+        (h(11, 7), Frame::PowerRequest(true)),
+        (h(12, 7), Frame::VprStream { pose, twist }),
+        (
+            h(500, 7),
+            Frame::Answer(Answer {
+                handle_pose: pose,
+                coupling_wrench: wrench,
+                status: status::POWER_ON
+                    | status::MOTORS_ENABLED
+                    | status::DEAD_MAN
+                    | status::COUPLED,
+                alarms: alarm::TORQUE_SATURATED,
+                cycle: 123_456,
+                vpr_seq: 12,
+            }),
+        ),
+        (
+            h(501, 7),
+            Frame::AnswerTwist(AnswerTwist {
+                handle_twist: twist,
+                status: status::POWER_ON,
+                alarms: 0,
+                cycle: 123_456,
+                vpr_seq: 12,
+            }),
+        ),
+        (
+            h(502, 7),
+            Frame::SessionAck {
+                client_nonce: 0x1234_5678,
+                period_us: 1000,
+            },
+        ),
+        (
+            h(503, 7),
+            Frame::Ack {
+                acked_type: FrameType::SetBaseFrame,
+                acked_seq: 3,
+            },
+        ),
+        (
+            h(504, 7),
+            Frame::Error {
+                reason: DecodeError::BadCrc.reason_index() as u32,
+                rejected_seq: 13,
+            },
+        ),
+    ]
+}
+
+fn dumps() -> String {
+    let mut s = String::new();
+    for (h, f) in samples() {
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let n = encode(&h, &f, &mut buf);
+        assert_eq!(decode(&buf[..n]).map(|(h2, _)| h2), Ok(h));
+        let t = f.frame_type();
+        writeln!(s, "#### `{}` (0x{:02X}), {} bytes\n", t.name(), t as u8, n).unwrap();
+        writeln!(s, "```text").unwrap();
+        for (i, chunk) in buf[..n].chunks(16).enumerate() {
+            let hex: Vec<String> = chunk.iter().map(|b| format!("{b:02x}")).collect();
+            let (a, b) = hex.split_at(hex.len().min(8));
+            let line = format!("{:04x}  {:<23}  {}", i * 16, a.join(" "), b.join(" "));
+            writeln!(s, "{}", line.trim_end()).unwrap();
+        }
+        writeln!(s, "```\n").unwrap();
+    }
+    s
+}
+
+#[test]
+fn documentation_dumps_are_current() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../Documentation/protocol.md"
+    );
+    let doc = std::fs::read_to_string(path).expect("Documentation/protocol.md");
+    let start = doc.find(BEGIN).expect("begin marker") + BEGIN.len();
+    let end = doc.find(END).expect("end marker");
+    let generated = dumps();
+    if std::env::var_os("HAP_WRITE_DOC").is_some() {
+        let new = format!("{}{}{}", &doc[..start], generated, &doc[end..]);
+        std::fs::write(path, new).unwrap();
+        return;
+    }
+    assert_eq!(
+        &doc[start..end],
+        generated,
+        "regenerate with HAP_WRITE_DOC=1"
+    );
+}
