@@ -19,9 +19,9 @@
 //! [`answer_twist_frame`] the `AnswerTwist` sent every [`TWIST_EVERY`]
 //! cycles (the handle twist does not fit in the 90-byte answer).
 
-use crate::fixed::{Fx, Pose, Quat, Twist, Vec3, Wrench};
-use crate::protocol::{Answer, AnswerTwist, Frame, FrameHeader};
-use crate::vp::{status, VpReceived, VpSent};
+use super::fixed::{Fx, Pose, Quat, Twist, Vec3, Wrench};
+use super::protocol::{Answer, AnswerTwist, Frame, FrameHeader};
+use super::vp::{status, VpReceived, VpSent};
 
 /// Longest extrapolation of VPr, µs; beyond it the estimate holds.
 pub const EXTRAPOLATION_HORIZON_US: u64 = 20_000;

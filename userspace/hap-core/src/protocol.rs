@@ -16,14 +16,14 @@
 //!
 //! Byte-by-byte layout of every payload: `Documentation/protocol.md`.
 //! Floats are XDR `float` (IEEE-754 single) converted to and from `Fx`
-//! with integer operations only ([`crate::xdr`]). `decode` never panics and
+//! with integer operations only ([`super::xdr`]). `decode` never panics and
 //! returns a typed [`DecodeError`] for every malformed input.
 
-use crate::config::{CommandType, IndexingMode, ServoConfig, VirtualObjectParams};
-use crate::crc::crc32c;
-use crate::fixed::{Fx, Pose, Quat, Twist, Vec3, Wrench};
-use crate::vp::VpReceived;
-use crate::xdr::{Decoder, Encoder, XdrError};
+use super::config::{CommandType, IndexingMode, ServoConfig, VirtualObjectParams};
+use super::crc::crc32c;
+use super::fixed::{Fx, Pose, Quat, Twist, Vec3, Wrench};
+use super::vp::VpReceived;
+use super::xdr::{Decoder, Encoder, XdrError};
 
 /// Largest frame, header and CRC included (spec §3.3.1.1).
 pub const MAX_FRAME_LEN: usize = 90;

@@ -18,8 +18,8 @@
 
 use core::fmt::{self, Write};
 
-use crate::clock::Verdict;
-use crate::protocol::{DecodeError, REASON_NAMES};
+use super::clock::Verdict;
+use super::protocol::{DecodeError, REASON_NAMES};
 
 /// Histogram buckets, 1 µs each: bucket `i` counts values in [i, i+1) µs.
 pub const HIST_BUCKETS: usize = 1000;
@@ -350,7 +350,7 @@ impl HapStats {
         match *v {
             Verdict::Good { mode } => {
                 c.cycles = c.cycles.saturating_add(1);
-                if mode == crate::clock::Mode::Degraded {
+                if mode == super::clock::Mode::Degraded {
                     c.degraded_cycles = c.degraded_cycles.saturating_add(1);
                 }
             }
@@ -363,11 +363,11 @@ impl HapStats {
             Verdict::FailSafe(cause) => {
                 if c.fail_safe == 0 {
                     c.cycles = c.cycles.saturating_add(1);
-                    if cause == crate::clock::FailSafeCause::MissLimit {
+                    if cause == super::clock::FailSafeCause::MissLimit {
                         c.misses = c.misses.saturating_add(1);
                         c.max_consecutive_misses = c
                             .max_consecutive_misses
-                            .max(u64::from(crate::clock::MISS_LIMIT));
+                            .max(u64::from(super::clock::MISS_LIMIT));
                     }
                 }
                 c.fail_safe = 1;
@@ -628,7 +628,7 @@ pub fn parse_summary(text: &str) -> Result<StatsSummary, ParseError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::clock::{FailSafeCause, Mode};
+    use super::super::clock::{FailSafeCause, Mode};
 
     fn reference_quantile(sorted_us: &[u64], num: u64, den: u64) -> u64 {
         let n = sorted_us.len() as u64;

@@ -8,7 +8,7 @@
 //! Nothing here panics: the cursors check the remaining length before every
 //! access and return [`XdrError::Short`] instead.
 
-use crate::fixed::Fx;
+use super::fixed::Fx;
 
 /// Why an XDR item could not be encoded or decoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
