@@ -32,7 +32,7 @@
 //! `b_i` and Coulomb friction `fc_i` (linear below 0.01 rad/s), a stiff
 //! spring–damper stop at each position limit, and a motor torque limit.
 
-use crate::fixed::{Fx, Joints, Mat3, Pose, Quat, Twist, Vec3, Wrench};
+use super::fixed::{Fx, Joints, Mat3, Pose, Quat, Twist, Vec3, Wrench};
 
 /// Base yaw axis to shoulder, m.
 pub const H0: Fx = Fx::from_ratio(20, 100);

@@ -13,12 +13,12 @@
 //! joint with the largest lever arm (see `Documentation/control.md`):
 //! `b_i > (K_t·r_i² + K_r)·T/2 + B_t·r_i² + B_r`.
 
-use crate::arm::{self, Kinematics};
-use crate::config::{CommandType, IndexingMode, ServoConfig};
-use crate::fixed::{Fx, Joints, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
-use crate::servo::ServoMode;
-use crate::state_model::{LogicalState, PhysicalState};
-use crate::vp::{alarm, status, VpReceived};
+use super::arm::{self, Kinematics};
+use super::config::{CommandType, IndexingMode, ServoConfig};
+use super::fixed::{Fx, Joints, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
+use super::servo::ServoMode;
+use super::state_model::{LogicalState, PhysicalState};
+use super::vp::{alarm, status, VpReceived};
 
 /// Nominal translational stiffness, N/m (capped by the bound).
 pub const K_LIN_NOMINAL: Fx = Fx::from_int(1500);
@@ -402,6 +402,8 @@ pub fn cartesian_control(
                 w.torque = w.torque.sub(w_h.scale(a));
             }
         }
+        // The PC force stays inside the same saturation.
+        w = w.saturate(MAX_FORCE, MAX_TORQUE).0;
         ctrl.prev_target = target;
         ctrl.prev_handle = p_h;
         ctrl.coupled = true;

@@ -27,7 +27,7 @@
 //! Errors carry the 1-based line and byte column of the offending field (for
 //! `Empty`, the line after the last one, column 1).
 
-use crate::fixed::{Fx, Vec3, Wrench};
+use super::fixed::{Fx, Vec3, Wrench};
 
 /// Keyframe storage of an [`EffortPlayer`].
 pub const EFFORT_CAPACITY: usize = 128;

@@ -566,8 +566,37 @@ impl Vec3 {
         self.dot(self)
     }
 
+    /// Euclidean norm. Small vectors are scaled up by up to 2^16 before
+    /// squaring so that norms down to ~1e-9 keep their precision.
     pub const fn norm(self) -> Fx {
-        self.norm_sq().sqrt()
+        let ax = self.x.0.unsigned_abs();
+        let ay = self.y.0.unsigned_abs();
+        let az = self.z.0.unsigned_abs();
+        let mut m = ax;
+        if ay > m {
+            m = ay;
+        }
+        if az > m {
+            m = az;
+        }
+        if m == 0 {
+            return Fx::ZERO;
+        }
+        // Shift so that the largest component stays below 2^30 raw (0.25).
+        let lz = m.leading_zeros() as i32;
+        let mut k = lz - 34;
+        if k < 0 {
+            k = 0;
+        }
+        if k > 16 {
+            k = 16;
+        }
+        if k == 0 {
+            return self.norm_sq().sqrt();
+        }
+        let k = k as u32;
+        let v = Vec3::new(Fx(self.x.0 << k), Fx(self.y.0 << k), Fx(self.z.0 << k));
+        Fx(v.norm_sq().sqrt().0 >> k)
     }
 
     /// Scale down so that the norm is at most `max`; returns the vector and

@@ -8,8 +8,8 @@
 //! the fail-safe sequence) inhibits them for good: later power-on requests
 //! are refused until `reset` (module reload).
 
-use crate::fixed::{Joints, JOINTS_ZERO};
-use crate::simulator::{Measures, Simulator};
+use super::fixed::{Joints, JOINTS_ZERO};
+use super::simulator::{Measures, Simulator};
 
 /// Motor command gate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

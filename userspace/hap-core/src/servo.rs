@@ -11,21 +11,21 @@
 //! gravity compensation plus joint damping only, `status::DEGRADED` set.
 //!
 //! Initial calibration: the simulated arm starts at rest in
-//! [`crate::arm::REST_Q`] (shoulder on its stop, forearm and wrist hanging),
+//! [`super::arm::REST_Q`] (shoulder on its stop, forearm and wrist hanging),
 //! motionless, unpowered, motor commands inhibited.
 //!
 //! Size: about 6 KB (the 128-keyframe effort storage is 4 KB); `Servo::new`
 //! is `const`, so the kernel can keep it in a static or a boxed allocation and
 //! call `init` once (or let the first `step` do it).
 
-use crate::config::ServoConfig;
-use crate::control::{cartesian_control, Controller};
-use crate::effort::{EffortKeyframe, EffortParseError, EffortPlayer, EffortSample};
-use crate::fixed::{Fx, JOINTS_ZERO};
-use crate::io::Io;
-use crate::simulator::{LogRecord, Simulator};
-use crate::state_model::{build_logical_state, build_physical_state};
-use crate::vp::{alarm, status, VpReceived, VpSent};
+use super::config::ServoConfig;
+use super::control::{cartesian_control, Controller};
+use super::effort::{EffortKeyframe, EffortParseError, EffortPlayer, EffortSample};
+use super::fixed::{Fx, JOINTS_ZERO};
+use super::io::Io;
+use super::simulator::{LogRecord, Simulator};
+use super::state_model::{build_logical_state, build_physical_state};
+use super::vp::{alarm, status, VpReceived, VpSent};
 
 /// Which SERVO path runs this cycle.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -85,9 +85,9 @@ pub struct Servo {
 }
 
 const VP_ZERO: VpSent = VpSent {
-    handle_pose: crate::fixed::Pose::IDENTITY,
-    handle_twist: crate::fixed::Twist::ZERO,
-    coupling_wrench: crate::fixed::Wrench::ZERO,
+    handle_pose: super::fixed::Pose::IDENTITY,
+    handle_twist: super::fixed::Twist::ZERO,
+    coupling_wrench: super::fixed::Wrench::ZERO,
     status: 0,
     alarms: 0,
     cycle: 0,

@@ -1,7 +1,7 @@
 //! hap_simulator: the simulated Virtuose arm (`simulate_arm`) and the binary
 //! position-log record it produces each cycle.
 //!
-//! One call integrates the joint dynamics of [`crate::arm`] over one servo
+//! One call integrates the joint dynamics of [`super::arm`] over one servo
 //! period with `SUBSTEPS` semi-implicit Euler sub-steps:
 //!
 //! ```text
@@ -19,11 +19,11 @@
 //! Power: the simulated arm supply is switched by [`Simulator::set_power`];
 //! unpowered, the motors produce no torque whatever is commanded, so the arm
 //! moves only under gravity, the user's effort and its stops; left alone it
-//! settles to [`crate::arm::REST_Q`] (shoulder on its stop, forearm hanging).
+//! settles to [`super::arm::REST_Q`] (shoulder on its stop, forearm hanging).
 
-use crate::arm::{self, Kinematics};
-use crate::effort::EffortSample;
-use crate::fixed::{Fx, Joints, Vec3, Wrench, JOINTS_ZERO};
+use super::arm::{self, Kinematics};
+use super::effort::EffortSample;
+use super::fixed::{Fx, Joints, Vec3, Wrench, JOINTS_ZERO};
 
 /// Integration sub-steps per servo period.
 pub const SUBSTEPS: u32 = 4;

@@ -3,13 +3,13 @@
 //! handle pose, J·q̇ → cartesian twist, measured wrench) built from the
 //! measures of one cycle.
 
-use crate::arm::{self, Kinematics};
-use crate::config::{CommandType, IndexingMode, ServoConfig};
-use crate::fixed::{Joints, Pose, Twist, Wrench};
-use crate::io::Io;
-use crate::servo::ServoMode;
-use crate::simulator::Measures;
-use crate::vp::{alarm, status};
+use super::arm::{self, Kinematics};
+use super::config::{CommandType, IndexingMode, ServoConfig};
+use super::fixed::{Joints, Pose, Twist, Wrench};
+use super::io::Io;
+use super::servo::ServoMode;
+use super::simulator::Measures;
+use super::vp::{alarm, status};
 
 /// What the controller knows about the arm's logic this cycle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,0 +1,268 @@
+//! Fixed-point math vs libm / nalgebra f64 over randomized inputs.
+//!
+//! Stated (asserted) error bounds:
+//! | op | domain | bound |
+//! |---|---|---|
+//! | `*` | |a|,|b| ≤ 1e4 (|a·b| < 2^31) | 2 LSB (4.7e-10) + f64 rounding of the reference; exact (floor) vs i128 |
+//! | `/` | |a| ≤ 1e4, 1e-3 ≤ |b| ≤ 1e4 | 1 LSB + 2^-52 relative |
+//! | `sqrt` | 0 ≤ x ≤ 2e9 | 2^-30 relative + 1 LSB |
+//! | `sin`, `cos` | |x| ≤ 1e4 | 4e-9 |
+//! | `atan2` | |x|,|y| ≤ 1e4 | 1e-8 rad |
+//! | `Quat::rotate`, `to_mat3`, `mul`, `Mat3` ops | unit quats, |v| ≤ 10 | 5e-8 |
+//! | `Quat::from_mat3`, `from_axis_angle` | random rotations | 5e-8 |
+//! Saturation: products/quotients out of range give MAX/MIN, never panic.
+#![allow(clippy::needless_range_loop)]
+
+use hap_core::fixed::{Fx, Mat3, Quat, Vec3};
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use proptest::prelude::*;
+use rand::{Rng, SeedableRng};
+
+const LSB: f64 = 1.0 / 4294967296.0;
+
+fn rng() -> rand::rngs::StdRng {
+    rand::rngs::StdRng::seed_from_u64(0x4841_5054)
+}
+
+fn rand_quat(r: &mut impl Rng) -> (Quat, UnitQuaternion<f64>) {
+    let v: [f64; 4] = [
+        r.gen_range(-1.0..1.0),
+        r.gen_range(-1.0..1.0),
+        r.gen_range(-1.0..1.0),
+        r.gen_range(-1.0..1.0),
+    ];
+    let uq = UnitQuaternion::from_quaternion(Quaternion::new(v[3], v[0], v[1], v[2]));
+    let q = Quat::new(
+        Fx::from_f64(uq.i),
+        Fx::from_f64(uq.j),
+        Fx::from_f64(uq.k),
+        Fx::from_f64(uq.w),
+    );
+    (q, uq)
+}
+
+#[test]
+fn scalar_ops_within_bounds() {
+    let mut r = rng();
+    let (mut e_mul, mut e_div, mut e_sqrt, mut e_sin, mut e_cos, mut e_atan) =
+        (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+    for _ in 0..200_000 {
+        let a = Fx::from_f64(r.gen_range(-1e4..1e4));
+        let b = Fx::from_f64(r.gen_range(-1e4..1e4));
+        let (af, bf) = (a.to_f64(), b.to_f64());
+        let m = (a * b).to_f64();
+        if (af * bf).abs() < 2.0e9 {
+            let e = (m - af * bf).abs();
+            e_mul = e_mul.max(e);
+            assert!(
+                e <= 2.0 * LSB + (af * bf).abs() * 2f64.powi(-52),
+                "{af} * {bf}: {e}"
+            );
+        }
+        let d = Fx::from_f64(r.gen_range(1e-3..1e4) * if r.gen_bool(0.5) { 1.0 } else { -1.0 });
+        let df = d.to_f64();
+        let q = (a / d).to_f64();
+        if (af / df).abs() < 2.0e9 {
+            let e = (q - af / df).abs();
+            e_div = e_div.max(e);
+            assert!(
+                e <= LSB + (af / df).abs() * 2f64.powi(-52) * 4.0,
+                "{af} / {df}: {e}"
+            );
+        }
+        let x = Fx::from_f64(r.gen_range(0.0..2e9f64).powf(r.gen_range(0.0..1.0)));
+        let s = x.sqrt().to_f64();
+        let e = (s - x.to_f64().sqrt()).abs();
+        e_sqrt = e_sqrt.max(e / x.to_f64().sqrt().max(1.0));
+        assert!(
+            e <= x.to_f64().sqrt() * 2f64.powi(-30) + LSB,
+            "sqrt {}: {e}",
+            x.to_f64()
+        );
+        let ang = Fx::from_f64(r.gen_range(-1e4..1e4) * if r.gen_bool(0.5) { 1e-4 } else { 1.0 });
+        let (sn, cs) = ang.sin_cos();
+        let es = (sn.to_f64() - libm::sin(ang.to_f64())).abs();
+        let ec = (cs.to_f64() - libm::cos(ang.to_f64())).abs();
+        e_sin = e_sin.max(es);
+        e_cos = e_cos.max(ec);
+        assert!(
+            es <= 4e-9 && ec <= 4e-9,
+            "sin/cos {}: {es} {ec}",
+            ang.to_f64()
+        );
+        let at = Fx::atan2(a, b).to_f64();
+        let mut ea = (at - libm::atan2(af, bf)).abs();
+        if ea > 3.0 {
+            ea = (ea - 2.0 * std::f64::consts::PI).abs();
+        }
+        e_atan = e_atan.max(ea);
+        assert!(ea <= 1e-8, "atan2({af}, {bf}) = {at}: {ea}");
+    }
+    println!("max abs error: mul {e_mul:.2e}, div {e_div:.2e}, sqrt(rel) {e_sqrt:.2e}, sin {e_sin:.2e}, cos {e_cos:.2e}, atan2 {e_atan:.2e}");
+}
+
+#[test]
+fn small_and_special_values() {
+    assert_eq!(Fx::atan2(Fx::ZERO, Fx::ZERO), Fx::ZERO);
+    assert!((Fx::atan2(Fx::ZERO, Fx::from_int(-1)).to_f64() - std::f64::consts::PI).abs() < 1e-8);
+    assert!(
+        (Fx::atan2(Fx::from_int(1), Fx::ZERO).to_f64() - std::f64::consts::FRAC_PI_2).abs() < 1e-8
+    );
+    assert!((Fx::atan2(Fx(1), Fx(1)).to_f64() - std::f64::consts::FRAC_PI_4).abs() < 1e-8);
+    assert_eq!(Fx::from_int(4).sqrt(), Fx::from_int(2));
+    assert_eq!(Fx::from_int(-4).sqrt(), Fx::ZERO);
+    assert_eq!(Fx::ONE / Fx::ZERO, Fx::MAX);
+    assert_eq!(-Fx::ONE / Fx::ZERO, Fx::MIN);
+    assert_eq!(Fx::ZERO / Fx::ZERO, Fx::ZERO);
+    assert_eq!(Fx::MAX * Fx::MAX, Fx::MAX);
+    assert_eq!(Fx::MIN * Fx::MAX, Fx::MIN);
+    assert_eq!(Fx::MIN * Fx::MIN, Fx::MAX);
+    assert_eq!(Fx::MAX + Fx::ONE, Fx::MAX);
+    assert_eq!(-Fx::MIN, Fx::MAX);
+    assert_eq!(Fx::MIN.abs(), Fx::MAX);
+    assert_eq!(Fx::MIN / Fx(-1), Fx::MAX);
+    assert_eq!(Fx::from_milli(1500), Fx::from_ratio(3, 2));
+    assert_eq!(Fx::from_ratio(3, 2).to_milli(), 1500);
+    assert!(
+        (Fx::from_f64(7.3).wrap_angle().to_f64() - (7.3 - 2.0 * std::f64::consts::PI)).abs() < 1e-8
+    );
+}
+
+#[test]
+fn quaternions_and_matrices_match_nalgebra() {
+    let mut r = rng();
+    let mut worst = 0f64;
+    for _ in 0..20_000 {
+        let (q, uq) = rand_quat(&mut r);
+        let (p, up) = rand_quat(&mut r);
+        let v = [
+            r.gen_range(-10.0..10.0),
+            r.gen_range(-10.0..10.0),
+            r.gen_range(-10.0..10.0),
+        ];
+        let rv = q.rotate(Vec3::from_f64(v)).to_f64();
+        let rr = uq * Vector3::from(v);
+        for i in 0..3 {
+            worst = worst.max((rv[i] - rr[i]).abs());
+        }
+        let pq = q.mul(&p);
+        let upq = uq * up;
+        let f = pq.to_f64();
+        let sign = if (f[3] * upq.w) < 0.0 { -1.0 } else { 1.0 };
+        for (a, b) in f.iter().zip([upq.i, upq.j, upq.k, upq.w]) {
+            worst = worst.max((a - sign * b).abs());
+        }
+        let m = q.to_mat3();
+        let rm = uq.to_rotation_matrix();
+        for i in 0..3 {
+            let row = m.r[i].to_f64();
+            for j in 0..3 {
+                worst = worst.max((row[j] - rm[(i, j)]).abs());
+            }
+        }
+        let back = Quat::from_mat3(&m).to_f64();
+        let s = if back[3] * uq.w < 0.0 { -1.0 } else { 1.0 };
+        for (a, b) in back.iter().zip([uq.i, uq.j, uq.k, uq.w]) {
+            worst = worst.max((a - s * b).abs());
+        }
+        // Matrix ops.
+        let mv = m.mul_vec(Vec3::from_f64(v)).to_f64();
+        let tv = m.transpose().mul_vec(Vec3::from_f64(v)).to_f64();
+        let tv2 = m.tmul_vec(Vec3::from_f64(v)).to_f64();
+        let rtv = rm.transpose() * Vector3::from(v);
+        for i in 0..3 {
+            worst = worst
+                .max((mv[i] - rr[i]).abs())
+                .max((tv[i] - rtv[i]).abs())
+                .max((tv2[i] - rtv[i]).abs());
+        }
+        let mm = m.mul(&p.to_mat3());
+        let rmm = rm * up.to_rotation_matrix();
+        for i in 0..3 {
+            let row = mm.r[i].to_f64();
+            for j in 0..3 {
+                worst = worst.max((row[j] - rmm[(i, j)]).abs());
+            }
+        }
+    }
+    println!("quat/mat max abs error {worst:.2e}");
+    assert!(worst <= 5e-8, "{worst}");
+}
+
+#[test]
+fn axis_angle_error_vector_and_normalize() {
+    let mut r = rng();
+    for _ in 0..5000 {
+        let axis = [
+            r.gen_range(-1.0..1.0),
+            r.gen_range(-1.0..1.0),
+            r.gen_range(-1.0..1.0),
+        ];
+        let ang: f64 = r.gen_range(-3.0..3.0);
+        let q = Quat::from_axis_angle(Vec3::from_f64(axis), Fx::from_f64(ang));
+        let uq = UnitQuaternion::from_axis_angle(
+            &nalgebra::Unit::new_normalize(Vector3::from(axis)),
+            ang,
+        );
+        let f = q.to_f64();
+        for (a, b) in f.iter().zip([uq.i, uq.j, uq.k, uq.w]) {
+            assert!((a - b).abs() < 5e-8, "{a} {b}");
+        }
+        // Small-angle error vector: ≈ θ·axis for a small extra rotation.
+        let small: f64 = r.gen_range(-0.01..0.01);
+        let d = Quat::from_axis_angle(Vec3::from_f64(axis), Fx::from_f64(small));
+        let e = d.mul(&q).error_vector(&q).to_f64();
+        let n = Vector3::from(axis).normalize() * small;
+        for i in 0..3 {
+            assert!((e[i] - n[i]).abs() < 1e-6, "{e:?} vs {n:?}");
+        }
+        // normalize / renormalize.
+        let k = r.gen_range(0.5..2.0);
+        let scaled = Quat::new(
+            q.x * Fx::from_f64(k),
+            q.y * Fx::from_f64(k),
+            q.z * Fx::from_f64(k),
+            q.w * Fx::from_f64(k),
+        );
+        let nq = scaled.normalize();
+        assert!((nq.norm_sq().to_f64() - 1.0).abs() < 1e-8);
+        let near = Quat::new(q.x * Fx::from_f64(1.001), q.y, q.z, q.w).renormalize();
+        assert!((near.norm_sq().to_f64() - 1.0).abs() < 1e-5);
+    }
+    // Vec3 helpers.
+    let v = Vec3::from_f64([3.0, 4.0, 0.0]);
+    assert_eq!(v.norm(), Fx::from_int(5));
+    let (c, clamped) = v.clamp_norm(Fx::ONE);
+    assert!(clamped && (c.norm().to_f64() - 1.0).abs() < 1e-8);
+    let x = Vec3::X.cross(Vec3::Y);
+    assert_eq!(x, Vec3::Z);
+    assert_eq!(Mat3::IDENTITY.mul(&Mat3::IDENTITY), Mat3::IDENTITY);
+}
+
+proptest! {
+    #[test]
+    fn arithmetic_never_panics(a in any::<i64>(), b in any::<i64>()) {
+        let (x, y) = (Fx(a), Fx(b));
+        let _ = (x + y, x - y, x * y, x / y, -x, x.abs(), x.sqrt(), x.sin_cos(), Fx::atan2(x, y), x.recip(), x.wrap_angle(), x.to_milli(), x.round_to_i64());
+        let v = Vec3::new(x, y, x);
+        let _ = (v.norm(), v.clamp_norm(y), v.cross(v), Quat::new(x, y, x, y).normalize(), Quat::from_axis_angle(v, y));
+        let q = Quat::new(x, y, y, x);
+        let _ = Quat::from_mat3(&q.to_mat3());
+    }
+
+    #[test]
+    fn mul_matches_exact_product(a in -(1i64 << 47)..(1i64 << 47), b in -(1i64 << 47)..(1i64 << 47)) {
+        // Exact reference with i128 (test only): floor(a*b / 2^32).
+        let exact = ((a as i128) * (b as i128)) >> 32;
+        let got = (Fx(a) * Fx(b)).0 as i128;
+        prop_assert_eq!(got, exact);
+    }
+
+    #[test]
+    fn div_matches_exact_quotient(a in -(1i64 << 50)..(1i64 << 50), b in 1i64..(1i64 << 50)) {
+        let exact = ((a as i128) << 32) / (b as i128);
+        if exact.abs() < (1i128 << 62) {
+            prop_assert_eq!((Fx(a) / Fx(b)).0 as i128, exact);
+        }
+    }
+}

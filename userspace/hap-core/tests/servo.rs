@@ -1,0 +1,287 @@
+//! The servo step: power gating, degraded mode, fail-safe hooks, determinism,
+//! log records.
+#![allow(clippy::needless_range_loop)]
+
+use hap_core::arm;
+use hap_core::config::{CommandType, ServoConfig};
+use hap_core::effort::EffortSample;
+use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench, JOINTS_ZERO};
+use hap_core::servo::{PowerRequest, Servo, ServoInputs, ServoMode};
+use hap_core::simulator::{LogDecodeError, LogRecord, Simulator};
+use hap_core::vp::{alarm, status, VpReceived};
+
+const PERIOD_NS: u32 = 1_000_000;
+
+const SCRIPT: &[u8] = b"# push around, release the dead-man at the end\n\
+0    0  0  0   0 0 0    1\n\
+400  4  1 -2   0 0.05 0 1\n\
+900 -3  2  1   0.02 0 0 1 1\n\
+1400 0  0  0   0 0 0    1\n\
+1800 0  0  0   0 0 0    0\n";
+
+fn impedance_cfg() -> ServoConfig {
+    ServoConfig {
+        command_type: CommandType::Impedance,
+        ..Default::default()
+    }
+}
+
+fn far_vpr() -> VpReceived {
+    VpReceived {
+        pose: Pose {
+            position: Vec3::from_f64([0.5, 0.3, 0.2]),
+            orientation: Quat::IDENTITY,
+        },
+        valid: true,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn servo_is_small_and_const_constructible() {
+    static _S: Servo = Servo::new(PERIOD_NS);
+    let size = core::mem::size_of::<Servo>();
+    println!("size_of::<Servo>() = {size} bytes");
+    assert!(size < 8 * 1024, "{size}");
+}
+
+#[test]
+fn power_off_the_arm_moves_only_under_gravity_and_the_user() {
+    // Servo never powered, commanded hard toward a far object...
+    let mut s = Servo::new(PERIOD_NS);
+    s.init();
+    s.load_effort_text(SCRIPT).unwrap();
+    // ...and a bare unpowered simulator under the same effort.
+    let mut bare = Simulator::new(PERIOD_NS);
+    bare.calibrate();
+    let mut player = hap_core::effort::EffortPlayer::new();
+    player.load_text(SCRIPT).unwrap();
+    let cfg = impedance_cfg();
+    let vpr = far_vpr();
+    for n in 0..2000u64 {
+        let vp = *s.step(&ServoInputs::default(), &cfg, &vpr, ServoMode::Main);
+        assert_eq!(
+            vp.status & (status::POWER_ON | status::MOTORS_ENABLED | status::COUPLED),
+            0
+        );
+        assert_eq!(s.log_record().motor_torque, JOINTS_ZERO);
+        let e = player.sample(n * 1000);
+        bare.set_user_effort(&e);
+        bare.simulate_arm();
+        assert_eq!(s.simulator().q, bare.q, "cycle {n}");
+    }
+    // The user moved it.
+    let moved = s
+        .simulator()
+        .q
+        .iter()
+        .zip(arm::REST_Q.iter())
+        .any(|(a, b)| (a.to_f64() - b.to_f64()).abs() > 0.01);
+    assert!(moved);
+
+    // Left alone, the unpowered arm stays at rest (shoulder on its stop).
+    let mut s = Servo::new(PERIOD_NS);
+    for _ in 0..2000 {
+        s.step(&ServoInputs::default(), &cfg, &vpr, ServoMode::Main);
+    }
+    for (a, b) in s.simulator().q.iter().zip(arm::REST_Q.iter()) {
+        assert!(
+            (a.to_f64() - b.to_f64()).abs() < 0.02,
+            "{:?}",
+            s.simulator().q
+        );
+    }
+}
+
+#[test]
+fn power_on_enables_commands_and_power_off_inhibits_them() {
+    let mut s = Servo::new(PERIOD_NS);
+    let cfg = ServoConfig::default();
+    let vpr = VpReceived::default();
+    let vp = *s.step(&ServoInputs::default(), &cfg, &vpr, ServoMode::Main);
+    assert_eq!(vp.status & status::MOTORS_ENABLED, 0);
+    let vp = *s.step(
+        &ServoInputs {
+            power_request: PowerRequest::On,
+            live_effort: None,
+        },
+        &cfg,
+        &vpr,
+        ServoMode::Main,
+    );
+    assert_ne!(vp.status & status::POWER_ON, 0);
+    assert_ne!(vp.status & status::MOTORS_ENABLED, 0);
+    // Gravity compensation is being commanded.
+    assert!(s.log_record().motor_torque[1].abs() > Fx::ONE);
+    let vp = *s.step(
+        &ServoInputs {
+            power_request: PowerRequest::Off,
+            live_effort: None,
+        },
+        &cfg,
+        &vpr,
+        ServoMode::Main,
+    );
+    assert_eq!(vp.status & (status::POWER_ON | status::MOTORS_ENABLED), 0);
+    assert_eq!(s.log_record().motor_torque, JOINTS_ZERO);
+    assert_eq!(s.simulator().motor_torques(), JOINTS_ZERO);
+}
+
+#[test]
+fn fail_safe_inhibits_for_good() {
+    let mut s = Servo::new(PERIOD_NS);
+    let cfg = impedance_cfg();
+    let vpr = far_vpr();
+    s.step(
+        &ServoInputs {
+            power_request: PowerRequest::On,
+            live_effort: None,
+        },
+        &cfg,
+        &vpr,
+        ServoMode::Main,
+    );
+    s.inhibit_motors();
+    assert_eq!(s.simulator().motor_torques(), JOINTS_ZERO);
+    s.power_off();
+    assert!(!s.simulator().powered());
+    let vp = *s.step(
+        &ServoInputs {
+            power_request: PowerRequest::On,
+            live_effort: None,
+        },
+        &cfg,
+        &vpr,
+        ServoMode::Main,
+    );
+    assert_eq!(vp.status & (status::POWER_ON | status::MOTORS_ENABLED), 0);
+    assert_ne!(vp.alarms & alarm::FAIL_SAFE, 0);
+    // init (module reload) clears it.
+    s.init();
+    let vp = *s.step(
+        &ServoInputs {
+            power_request: PowerRequest::On,
+            live_effort: None,
+        },
+        &cfg,
+        &vpr,
+        ServoMode::Main,
+    );
+    assert_ne!(vp.status & status::MOTORS_ENABLED, 0);
+}
+
+#[test]
+fn degraded_mode_is_uncoupled_and_flagged() {
+    let mut s = Servo::new(PERIOD_NS);
+    s.init();
+    s.simulator_mut().set_state(&arm::WORK_Q, &JOINTS_ZERO);
+    let cfg = impedance_cfg();
+    let vpr = far_vpr();
+    let held = Some(EffortSample {
+        wrench: Wrench::ZERO,
+        dead_man: true,
+        buttons: 0,
+    });
+    let on = ServoInputs {
+        power_request: PowerRequest::On,
+        live_effort: held,
+    };
+    let vp = *s.step(&on, &cfg, &vpr, ServoMode::Main);
+    assert_ne!(vp.status & status::COUPLED, 0);
+    let mut inputs = on;
+    inputs.power_request = PowerRequest::None;
+    for _ in 0..500 {
+        let vp = *s.step(&inputs, &cfg, &vpr, ServoMode::Degraded);
+        assert_ne!(vp.status & status::DEGRADED, 0);
+        assert_eq!(vp.status & status::COUPLED, 0);
+        assert_eq!(vp.coupling_wrench, Wrench::ZERO);
+    }
+}
+
+fn scripted_run() -> Vec<[u8; LogRecord::SIZE]> {
+    let mut s = Servo::new(PERIOD_NS);
+    s.init();
+    s.load_effort_text(SCRIPT).unwrap();
+    let cfg = impedance_cfg();
+    let mut out = Vec::new();
+    for n in 0..3000u32 {
+        let t = Fx::from_ratio(n as i64, 1000);
+        let vpr = VpReceived {
+            pose: Pose {
+                position: Vec3::new(
+                    Fx::from_ratio(33, 100),
+                    Fx::from_ratio(5, 100).mul_sat(t.sin()),
+                    Fx::from_ratio(-50, 100),
+                ),
+                orientation: Quat::IDENTITY,
+            },
+            valid: n > 200,
+            seq: n,
+            ..Default::default()
+        };
+        let power = if n == 100 {
+            PowerRequest::On
+        } else {
+            PowerRequest::None
+        };
+        let mode = if n % 500 == 499 {
+            ServoMode::Degraded
+        } else {
+            ServoMode::Main
+        };
+        s.step(
+            &ServoInputs {
+                power_request: power,
+                live_effort: None,
+            },
+            &cfg,
+            &vpr,
+            mode,
+        );
+        let mut b = [0u8; LogRecord::SIZE];
+        s.log_record().encode(&mut b);
+        out.push(b);
+    }
+    out
+}
+
+#[test]
+fn two_runs_of_the_same_script_give_identical_log_records() {
+    let a = scripted_run();
+    let b = scripted_run();
+    assert_eq!(a.len(), b.len());
+    assert!(a == b);
+    // And the run did something.
+    let first = LogRecord::decode(&a[0]).unwrap();
+    let last = LogRecord::decode(a.last().unwrap()).unwrap();
+    assert_ne!(first.q, last.q);
+    assert_eq!(last.cycle, 2999);
+}
+
+#[test]
+fn log_record_round_trip_and_errors() {
+    let mut s = Servo::new(PERIOD_NS);
+    s.load_effort_text(SCRIPT).unwrap();
+    for _ in 0..500 {
+        s.step(
+            &ServoInputs {
+                power_request: PowerRequest::On,
+                live_effort: None,
+            },
+            &impedance_cfg(),
+            &far_vpr(),
+            ServoMode::Main,
+        );
+    }
+    let r = *s.log_record();
+    let mut b = [0u8; LogRecord::SIZE];
+    r.encode(&mut b);
+    assert_eq!(&b[0..4], b"HAPL");
+    assert_eq!(LogRecord::decode(&b), Ok(r));
+    let mut bad = b;
+    bad[0] = b'X';
+    assert_eq!(LogRecord::decode(&bad), Err(LogDecodeError::BadMagic));
+    let mut bad = b;
+    bad[4] = 9;
+    assert_eq!(LogRecord::decode(&bad), Err(LogDecodeError::BadVersion));
+}
