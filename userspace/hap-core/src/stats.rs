@@ -627,8 +627,8 @@ pub fn parse_summary(text: &str) -> Result<StatsSummary, ParseError> {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
     use super::super::clock::{FailSafeCause, Mode};
+    use super::*;
 
     fn reference_quantile(sorted_us: &[u64], num: u64, den: u64) -> u64 {
         let n = sorted_us.len() as u64;
