@@ -420,23 +420,36 @@ const fn isqrt_u64(n: u64) -> u64 {
 }
 
 /// sin and cos of |x| <= π/4 (slightly more is fine).
+// Taylor coefficients (evaluated at compile time).
+const C_N39916800: Fx = Fx::ratio(-1, 39_916_800);
+const C_P362880: Fx = Fx::ratio(1, 362_880);
+const C_N5040: Fx = Fx::ratio(-1, 5_040);
+const C_P120: Fx = Fx::ratio(1, 120);
+const C_N6: Fx = Fx::ratio(-1, 6);
+const C_P479001600: Fx = Fx::ratio(1, 479_001_600);
+const C_N3628800: Fx = Fx::ratio(-1, 3_628_800);
+const C_P40320: Fx = Fx::ratio(1, 40_320);
+const C_N720: Fx = Fx::ratio(-1, 720);
+const C_P24: Fx = Fx::ratio(1, 24);
+const C_N2: Fx = Fx::ratio(-1, 2);
+
 const fn sin_cos_poly(x: Fx) -> (Fx, Fx) {
     let x2 = x.mul_sat(x);
     // sin: x·(1 - x²/6 + x⁴/120 - x⁶/5040 + x⁸/362880 - x¹⁰/39916800)
-    let mut s = Fx::ratio(-1, 39_916_800);
-    s = Fx::ratio(1, 362_880).add_sat(x2.mul_sat(s));
-    s = Fx::ratio(-1, 5_040).add_sat(x2.mul_sat(s));
-    s = Fx::ratio(1, 120).add_sat(x2.mul_sat(s));
-    s = Fx::ratio(-1, 6).add_sat(x2.mul_sat(s));
+    let mut s = C_N39916800;
+    s = C_P362880.add_sat(x2.mul_sat(s));
+    s = C_N5040.add_sat(x2.mul_sat(s));
+    s = C_P120.add_sat(x2.mul_sat(s));
+    s = C_N6.add_sat(x2.mul_sat(s));
     s = Fx::ONE.add_sat(x2.mul_sat(s));
     let s = x.mul_sat(s);
     // cos: 1 - x²/2 + x⁴/24 - x⁶/720 + x⁸/40320 - x¹⁰/3628800 + x¹²/479001600
-    let mut c = Fx::ratio(1, 479_001_600);
-    c = Fx::ratio(-1, 3_628_800).add_sat(x2.mul_sat(c));
-    c = Fx::ratio(1, 40_320).add_sat(x2.mul_sat(c));
-    c = Fx::ratio(-1, 720).add_sat(x2.mul_sat(c));
-    c = Fx::ratio(1, 24).add_sat(x2.mul_sat(c));
-    c = Fx::ratio(-1, 2).add_sat(x2.mul_sat(c));
+    let mut c = C_P479001600;
+    c = C_N3628800.add_sat(x2.mul_sat(c));
+    c = C_P40320.add_sat(x2.mul_sat(c));
+    c = C_N720.add_sat(x2.mul_sat(c));
+    c = C_P24.add_sat(x2.mul_sat(c));
+    c = C_N2.add_sat(x2.mul_sat(c));
     c = Fx::ONE.add_sat(x2.mul_sat(c));
     (s, c)
 }
