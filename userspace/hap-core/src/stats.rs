@@ -435,10 +435,12 @@ impl Write for SliceWriter<'_> {
     fn write_str(&mut self, s: &str) -> fmt::Result {
         let room = self.buf.len().saturating_sub(self.pos);
         let n = s.len().min(room);
-        let src = s.as_bytes().get(..n).unwrap_or(&[]);
-        if let Some(dst) = self.buf.get_mut(self.pos..self.pos.saturating_add(n)) {
-            dst.copy_from_slice(src);
-            self.pos = self.pos.saturating_add(n);
+        let end = self.pos.saturating_add(n);
+        if let (Some(dst), Some(src)) = (self.buf.get_mut(self.pos..end), s.as_bytes().get(..n)) {
+            for (d, b) in dst.iter_mut().zip(src) {
+                *d = *b;
+            }
+            self.pos = end;
         }
         if n < s.len() {
             self.truncated = true;
@@ -531,6 +533,12 @@ pub struct ParseError {
     pub kind: ParseErrorKind,
 }
 
+/// `(before, after)` around the first ASCII byte `sep`.
+fn split_at_byte(s: &str, sep: u8) -> Option<(&str, &str)> {
+    let i = s.bytes().position(|b| b == sep)?;
+    Some((s.get(..i)?, s.get(i.checked_add(1)?..)?))
+}
+
 fn set_timing(t: &mut TimingSummary, field: &str, v: &str) -> Result<bool, ParseErrorKind> {
     let u = || v.parse::<u64>().map_err(|_| ParseErrorKind::BadNumber);
     let u32v = || v.parse::<u32>().map_err(|_| ParseErrorKind::BadNumber);
@@ -580,7 +588,7 @@ fn set_field(s: &mut StatsSummary, key: &str, v: &str) -> Result<(), ParseErrorK
                         *slot = u()?;
                     }
                 }
-            } else if let Some((series, field)) = key.split_once('.') {
+            } else if let Some((series, field)) = split_at_byte(key, b'.') {
                 let t = match series {
                     "wakeup" => &mut s.wakeup,
                     "exec" => &mut s.exec,
@@ -600,17 +608,17 @@ fn set_field(s: &mut StatsSummary, key: &str, v: &str) -> Result<(), ParseErrorK
 pub fn parse_summary(text: &str) -> Result<StatsSummary, ParseError> {
     let mut s = StatsSummary::default();
     let mut seen_version = false;
-    for (n, raw) in text.lines().enumerate() {
-        let line = raw.trim();
+    let mut n: usize = 0;
+    // Byte-wise splitting: no char searchers, no overflow-checked counters.
+    for raw in text.as_bytes().split(|&b| b == b'\n') {
+        n = n.saturating_add(1);
+        let line = core::str::from_utf8(raw.trim_ascii()).unwrap_or("");
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
-        let err = |kind| ParseError {
-            line: n.saturating_add(1),
-            kind,
-        };
-        let (key, value) = line.split_once(':').ok_or(err(ParseErrorKind::NoColon))?;
-        let (key, value) = (key.trim(), value.trim());
+        let err = |kind| ParseError { line: n, kind };
+        let (key, value) = split_at_byte(line, b':').ok_or(err(ParseErrorKind::NoColon))?;
+        let (key, value) = (key.trim_ascii(), value.trim_ascii());
         if key == "version" {
             seen_version = true;
         }
