@@ -78,6 +78,7 @@ pub fn csv_row(r: &LogRecord) -> String {
     )
 }
 
+#[cfg_attr(not(feature = "analyze"), allow(dead_code))]
 /// Decode whole records from a byte buffer (a trailing partial record is
 /// ignored; undecodable records are counted).
 pub fn decode_all(bytes: &[u8]) -> (Vec<LogRecord>, usize) {

@@ -179,15 +179,16 @@ impl Bridge {
         })
     }
 
-    /// Ask the threads to stop and wait for the SERVER thread (the CLIENT
-    /// thread may be blocked in a read of the device; it is left to die with
-    /// the process).
+    /// Ask the threads to stop and wait up to a second for them (a thread
+    /// blocked in open() or read() of a device is left to die with the
+    /// process).
     pub fn stop(&mut self) {
         self.shared.stop.store(true, Ordering::SeqCst);
-        if let Some(h) = self.server.take() {
-            let _ = h.join();
-        }
-        if let Some(h) = self.client.take() {
+        let deadline = Instant::now() + Duration::from_secs(1);
+        for h in [self.server.take(), self.client.take()].into_iter().flatten() {
+            while !h.is_finished() && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(10));
+            }
             if h.is_finished() {
                 let _ = h.join();
             }

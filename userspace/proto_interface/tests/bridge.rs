@@ -274,3 +274,39 @@ fn bad_command_line_is_refused() {
         assert!(String::from_utf8_lossy(&o.stderr).contains("error:"), "{args:?}");
     }
 }
+
+#[test]
+fn sigterm_while_waiting_for_the_module() {
+    // The launch script starts the bridge before insmod: it must wait for
+    // the devices, and still exit at once on SIGTERM.
+    let dir = tmpdir("wait");
+    let (rin, rout) = (dir.join("rtf_in"), dir.join("rtf_out"));
+    mkfifo(&rin); // no reader: open() for writing blocks
+    let mut child = Command::new(env!("CARGO_BIN_EXE_proto_interface"))
+        .args(["--bind", "127.0.0.1", "--port", "0", "--no-stats-file", "--rtf-in"])
+        .arg(&rin)
+        .arg("--rtf-out")
+        .arg(&rout) // does not exist yet
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    // SAFETY: plain kill(2) on our child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let t = Instant::now();
+    let st = loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            break st;
+        }
+        if t.elapsed() > Duration::from_secs(3) {
+            let _ = child.kill();
+            panic!("proto_interface hung on SIGTERM while waiting for its devices");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut e = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut e).unwrap();
+    assert!(st.success(), "{e}");
+    assert!(e.contains("waiting for") && e.contains("exiting (SIGTERM)"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
