@@ -1,15 +1,33 @@
 // SPDX-License-Identifier: GPL-2.0
 
-//! CLOCK (the spec's hap_clock): the synchronous cycle's top. An absolute,
-//! hard-IRQ hrtimer on the period grid posts the cycle-start completion that
-//! SERVO waits on.
+//! CLOCK (the spec's hap_clock): the synchronous cycle supervisor.
+//!
+//! - The cycle timer (absolute, hard-IRQ hrtimer on the period grid) is the
+//!   top of each cycle: it posts `cycle_start` to SERVO if SERVO waits at the
+//!   barrier (rendezvous: a SERVO still busy gets no second cycle queued; the
+//!   tick is counted as not posted).
+//! - The check timer fires at 3/4 of each period and wakes the CLOCK thread
+//!   (SCHED_FIFO 99, above SERVO), which asks hap-core's `Supervisor` whether
+//!   SERVO finished, updates the statistics, sets SERVO's mode (main or
+//!   degraded), and on a stop request or exactly 5 consecutive misses runs
+//!   the fail-safe in `FAIL_SAFE_SEQUENCE` order, then exits.
+//! - `/dev/hap_stop` (the spec's stop RT-FIFO handler) sets `servo_stop`.
 
-use crate::shared::Shared;
+use crate::{
+    completion::Wait,
+    hap_core::clock::{
+        FailSafeAction, FailSafeCause, Mode, Supervisor, Verdict, FAIL_SAFE_SEQUENCE,
+    },
+    shared::{self, state, Shared},
+};
 use kernel::{
+    fs::{File, Kiocb},
     impl_has_hr_timer,
+    iov::IovIterSource,
+    miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
     sync::{
-        atomic::{Relaxed, Release},
+        atomic::{Acquire, Relaxed, Release},
         Arc, ArcBorrow,
     },
     time::{
@@ -17,10 +35,11 @@ use kernel::{
             AbsoluteHardMode, ArcHrTimerHandle, HrTimer, HrTimerCallback, HrTimerCallbackContext,
             HrTimerPointer, HrTimerRestart,
         },
-        Instant, Monotonic,
+        Delta, Instant, Monotonic,
     },
 };
 
+/// The cycle timer: posts the cycle start.
 #[pin_data]
 pub(crate) struct CycleTimer {
     #[pin]
@@ -28,18 +47,37 @@ pub(crate) struct CycleTimer {
     shared: Arc<Shared>,
 }
 
-impl CycleTimer {
-    /// Start the timer: first expiry one period from now, then every period.
-    pub(crate) fn start(shared: Arc<Shared>) -> Result<ArcHrTimerHandle<Self>> {
-        let first = Instant::<Monotonic>::now() + shared.period();
-        let this = Arc::pin_init(
-            pin_init!(Self {
-                timer <- HrTimer::new(),
-                shared,
-            }),
+/// The check timer: 3/4 of a period after each cycle start.
+#[pin_data]
+pub(crate) struct CheckTimer {
+    #[pin]
+    timer: HrTimer<Self>,
+    shared: Arc<Shared>,
+}
+
+/// Both timers, started on the same grid; dropping them cancels them.
+pub(crate) struct Timers {
+    _cycle: ArcHrTimerHandle<CycleTimer>,
+    _check: ArcHrTimerHandle<CheckTimer>,
+}
+
+impl Timers {
+    pub(crate) fn start(shared: &Arc<Shared>) -> Result<Self> {
+        let period = Delta::from_nanos(shared.period_ns());
+        let first = Instant::<Monotonic>::now() + period;
+        let check_offset = Delta::from_nanos(shared.period_ns() / 4 * 3);
+        let cycle = Arc::pin_init(
+            pin_init!(CycleTimer { timer <- HrTimer::new(), shared: shared.clone() }),
             GFP_KERNEL,
         )?;
-        Ok(this.start(first))
+        let check = Arc::pin_init(
+            pin_init!(CheckTimer { timer <- HrTimer::new(), shared: shared.clone() }),
+            GFP_KERNEL,
+        )?;
+        Ok(Timers {
+            _cycle: cycle.start(first),
+            _check: check.start(first + check_offset),
+        })
     }
 }
 
@@ -47,16 +85,22 @@ impl HrTimerCallback for CycleTimer {
     type Pointer<'a> = Arc<Self>;
 
     fn run(this: ArcBorrow<'_, Self>, mut ctx: HrTimerCallbackContext<'_, Self>) -> HrTimerRestart {
-        let shared = &this.shared;
-        if shared.is_stopping() {
+        let sh = &this.shared;
+        if sh.is_stopping() {
             return HrTimerRestart::NoRestart;
         }
-        let expiry = shared.ns_of(this.timer.expires());
-        shared.cycle_expiry_ns.store(expiry, Release);
-        shared.timer_ticks.add(1, Relaxed);
-        shared.cycle_start.complete();
-        // Stay on the period grid; periods already past are skipped.
-        ctx.forward_now(shared.period());
+        let expiry = sh.ns_of(this.timer.expires());
+        sh.expiry_ns.store(expiry, Release);
+        let now = sh.now_ns();
+        sh.tick_ns.store(now, Relaxed);
+        sh.tick.fetch_add(1, Release);
+        // Rendezvous with SERVO at the barrier.
+        if sh.servo_waiting.load(Acquire) {
+            sh.cycle_start.complete();
+        } else {
+            sh.ticks_not_posted.add(1, Relaxed);
+        }
+        ctx.forward_now(Delta::from_nanos(sh.period_ns()));
         HrTimerRestart::Restart
     }
 }
@@ -64,5 +108,180 @@ impl HrTimerCallback for CycleTimer {
 impl_has_hr_timer! {
     impl HasHrTimer<Self> for CycleTimer {
         mode: AbsoluteHardMode<Monotonic>, field: self.timer
+    }
+}
+
+impl HrTimerCallback for CheckTimer {
+    type Pointer<'a> = Arc<Self>;
+
+    fn run(this: ArcBorrow<'_, Self>, mut ctx: HrTimerCallbackContext<'_, Self>) -> HrTimerRestart {
+        let sh = &this.shared;
+        if sh.is_stopping() {
+            return HrTimerRestart::NoRestart;
+        }
+        sh.check_due.complete();
+        ctx.forward_now(Delta::from_nanos(sh.period_ns()));
+        HrTimerRestart::Restart
+    }
+}
+
+impl_has_hr_timer! {
+    impl HasHrTimer<Self> for CheckTimer {
+        mode: AbsoluteHardMode<Monotonic>, field: self.timer
+    }
+}
+
+/// The hrtimer resolution in ns: 1 once the kernel runs high-resolution
+/// timers, the tick length (1 ms at HZ=1000) before the switch (early boot,
+/// or no high-resolution clock event device).
+pub(crate) fn hrtimer_resolution_ns() -> u32 {
+    // SAFETY: `hrtimer_resolution` is an exported, naturally aligned `unsigned
+    // int` that the kernel only writes when it switches timer modes; a racy
+    // read gives the old or the new value, both meaningful.
+    unsafe { core::ptr::read_volatile(&raw const kernel::bindings::hrtimer_resolution) }
+}
+
+pub(crate) fn mode_to_u32(m: Mode) -> u32 {
+    match m {
+        Mode::Normal => 0,
+        Mode::Degraded => 1,
+        Mode::FailSafe => 2,
+    }
+}
+
+/// CLOCK's thread body.
+pub(crate) fn clock_main(sh: &Shared) {
+    let mut sup = Supervisor::new();
+    let mut last_tick_seen = 0u64;
+    while !crate::kthread::should_stop() && !sh.is_stopping() {
+        if sh.check_due.wait_timeout(100) == Wait::TimedOut {
+            continue;
+        }
+        if sh.is_stopping() {
+            break;
+        }
+        if sh.stop_request.load(Acquire) && !sup.stop_requested() {
+            sup.request_stop();
+        }
+        // SERVO finished this cycle iff it is not working and its last
+        // finished cycle is the current tick.
+        let tick = sh.tick.load(Acquire);
+        let working = sh.servo_working.load(Acquire) || sh.servo_done_tick.load(Acquire) != tick;
+        let verdict = sup.check(working);
+        sh.mode.store(mode_to_u32(sup.mode()), Release);
+        {
+            let mut st = sh.stats.lock();
+            if tick != last_tick_seen {
+                let expiry = sh.expiry_ns.load(Acquire);
+                let start = sh.servo_start_ns.load(Acquire);
+                let end = sh.servo_end_ns.load(Acquire);
+                if start >= expiry {
+                    st.wakeup.record_ns((start - expiry) as u64);
+                    if !working && end >= start {
+                        st.exec.record_ns((end - start) as u64);
+                    }
+                }
+                let t = sh.tick_ns.load(Relaxed);
+                if t > 0 {
+                    st.jitter.top(t as u64);
+                }
+                last_tick_seen = tick;
+            }
+            st.record_verdict(&verdict);
+        }
+        if let Verdict::Miss { consecutive } = verdict {
+            if let Some(mut d) = sh.data.try_lock() {
+                d.cycle.servo.note_deadline_miss();
+            }
+            let _ = consecutive;
+        }
+        if let Verdict::FailSafe(cause) = verdict {
+            fail_safe(sh, cause);
+            return;
+        }
+    }
+}
+
+/// The fail-safe (spec §3.4, §4.1), in hap-core's order. Runs in CLOCK.
+pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
+    sh.state.store(state::FAIL_SAFE, Release);
+    pr_warn!(
+        "fail-safe ({}): start (tick {}, servo done tick {}, working {}, not posted {})\n",
+        cause.name(),
+        sh.tick.load(Relaxed),
+        sh.servo_done_tick.load(Relaxed),
+        sh.servo_working.load(Relaxed),
+        sh.ticks_not_posted.load(Relaxed)
+    );
+    for (i, action) in FAIL_SAFE_SEQUENCE.iter().enumerate() {
+        match action {
+            FailSafeAction::InhibitMotorCommands => {
+                // The line is cut at once; SERVO's data is updated now if
+                // SERVO is not inside its cycle, else at its next lock.
+                sh.inhibit_motors.store(true, Release);
+                if let Some(mut d) = sh.data.try_lock() {
+                    d.cycle.servo.inhibit_motors();
+                }
+            }
+            FailSafeAction::PowerOffArm => {
+                sh.arm_power_cut.store(true, Release);
+                if let Some(mut d) = sh.data.try_lock() {
+                    d.cycle.servo.power_off();
+                }
+            }
+            FailSafeAction::CloseProtocol => {
+                sh.proto.lock().close();
+                sh.rtf_out.close();
+                sh.rtf_in.close();
+            }
+            FailSafeAction::StopTasks => {
+                sh.stopping.store(true, Release);
+                sh.cycle_start.complete_all();
+                sh.rtf_in_ready.complete_all();
+            }
+            FailSafeAction::ReleaseResources => {
+                let mut log = sh.simlog.lock();
+                log.closed = true;
+                drop(log);
+                sh.simlog_readable.notify_all();
+            }
+        }
+        pr_warn!(
+            "hapticctrl: fail-safe ({}): step {}/{}: {}\n",
+            cause.name(),
+            i + 1,
+            FAIL_SAFE_SEQUENCE.len(),
+            action.name()
+        );
+    }
+    pr_warn!(
+        "fail-safe ({}): done, tasks stopped; rmmod to unload\n",
+        cause.name()
+    );
+}
+
+/// `/dev/hap_stop`: any write requests the application's termination.
+pub(crate) struct StopDevice {
+    shared: Arc<Shared>,
+}
+
+#[vtable]
+impl MiscDevice for StopDevice {
+    type Ptr = KBox<Self>;
+
+    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+        Ok(KBox::new(
+            StopDevice {
+                shared: shared::get()?,
+            },
+            GFP_KERNEL,
+        )?)
+    }
+
+    fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
+        let n = iov.len();
+        iov.advance(n);
+        kiocb.file().shared.stop_request.store(true, Release);
+        Ok(n)
     }
 }

@@ -57,5 +57,4 @@ impl Completion {
             Wait::Completed
         }
     }
-
 }

@@ -1,37 +1,62 @@
 // SPDX-License-Identifier: GPL-2.0
 
 //! hapticctrl: a real-time haptic servo controller for a (simulated) 6-DoF
-//! Virtuose arm, after the OCERA "robotic application V0" design.
+//! Virtuose arm, after the OCERA "robotic application V0" design (D9rb.2).
 //!
-//! This file is the spec's hapticctrl_app: module init creates the channels,
-//! the devices, the CLOCK timer and the SERVO thread; module exit tears them
-//! down in reverse. All computation lives in hap-core (`userspace/hap-core`),
-//! compiled into this module by source path.
+//! This file is the spec's hapticctrl_app. Module init creates the ITCs
+//! (`shared.rs`), initialises the components (protocol, servo, io, state
+//! model, control, simulator — all hap-core, calibrated at rest), registers
+//! the char devices, then creates the kernel tasks: PROTO_IN, SERVO and CLOCK
+//! (its thread, then its timers, which start the synchronous cycle). Any
+//! failure unwinds what was created, in reverse, and insmod fails with a
+//! dmesg line and the errno. Module exit stops the cycle, closes the
+//! protocol, stops the tasks and frees everything.
+//!
+//! All computation lives in hap-core (`userspace/hap-core`), compiled into
+//! this module by source path; this crate only schedules, synchronises and
+//! moves bytes. Documentation/architecture.md has the picture.
 
 use kernel::{
     c_str,
-    miscdevice::{MiscDeviceOptions, MiscDeviceRegistration},
+    miscdevice::{MiscDevice, MiscDeviceOptions, MiscDeviceRegistration},
     prelude::*,
     sync::{atomic::Release, Arc},
-    time::hrtimer::ArcHrTimerHandle,
 };
 
 #[path = "../userspace/hap-core/src/lib.rs"]
-#[allow(unused_attributes, unreachable_pub, dead_code, missing_docs)]
-#[allow(clippy::all)]
+#[allow(
+    unused_attributes,
+    unreachable_pub,
+    dead_code,
+    missing_docs,
+    clippy::all
+)]
 mod hap_core;
 
 mod clock;
 mod completion;
-mod devices;
+mod fault;
+mod io;
 mod kthread;
+mod proto_in;
+mod proto_synchro;
+mod ring;
+mod rtf;
+mod rwsem;
 mod servo;
 mod shared;
+mod simulator;
+mod stats;
 
-use clock::CycleTimer;
-use devices::{RtfInDevice, StatsDevice};
+use clock::{StopDevice, Timers};
+use fault::FaultDevice;
+use hap_core::clock::{validate_period_us, PERIOD_MAX_US, PERIOD_MIN_US};
+use io::PowerDevice;
 use kthread::{KThread, SchedClass};
+use rtf::{RtfInDevice, RtfOutDevice};
 use shared::Shared;
+use simulator::{EffortDevice, SimLogDevice};
+use stats::StatsDevice;
 
 module! {
     type: HapticCtrl,
@@ -47,74 +72,173 @@ module! {
     },
 }
 
-kernel::sync::global_lock! {
-    // SAFETY: initialised in `HapticCtrl::init` before any device is registered.
-    unsafe(uninit) static SHARED: Mutex<Option<Arc<Shared>>> = None;
+/// SCHED_FIFO priorities (spec §3.4–3.5: CLOCK above SERVO above PROTO_IN).
+const CLOCK_PRIORITY: u8 = 99;
+const SERVO_PRIORITY: u8 = 80;
+const PROTO_IN_PRIORITY: u8 = 1;
+
+type Device<T> = Pin<KBox<MiscDeviceRegistration<T>>>;
+
+fn register<T: MiscDevice>(name: &'static CStr) -> Result<Device<T>> {
+    KBox::pin_init(
+        MiscDeviceRegistration::register(MiscDeviceOptions { name }),
+        GFP_KERNEL,
+    )
+    .inspect_err(|e| pr_err!("cannot register /dev/{}: {:?}\n", name, e))
 }
 
-/// SCHED_FIFO priority of SERVO (below CLOCK's hard-IRQ timer).
-const SERVO_PRIORITY: u8 = 80;
+/// The char devices (registered before the tasks, removed after them).
+struct Devices {
+    _rtf_in: Device<RtfInDevice>,
+    _rtf_out: Device<RtfOutDevice>,
+    _stop: Device<StopDevice>,
+    _power: Device<PowerDevice>,
+    _stats: Device<StatsDevice>,
+    _effort: Device<EffortDevice>,
+    _simlog: Device<SimLogDevice>,
+    _fault: Device<FaultDevice>,
+}
+
+impl Devices {
+    fn register() -> Result<Self> {
+        Ok(Devices {
+            _rtf_in: register(c_str!("hap_rtf_in"))?,
+            _rtf_out: register(c_str!("hap_rtf_out"))?,
+            _stop: register(c_str!("hap_stop"))?,
+            _power: register(c_str!("hap_power"))?,
+            _stats: register(c_str!("hap_stats"))?,
+            _effort: register(c_str!("hap_effort"))?,
+            _simlog: register(c_str!("hap_simlog"))?,
+            _fault: register(c_str!("hap_fault"))?,
+        })
+    }
+}
+
+/// The kernel tasks, in creation order.
+struct Tasks {
+    proto_in: Option<KThread<Shared>>,
+    servo: Option<KThread<Shared>>,
+    clock: Option<KThread<Shared>>,
+    timers: Option<Timers>,
+}
+
+impl Tasks {
+    fn start(shared: &Arc<Shared>) -> Result<Self> {
+        let spawn = |name: &'static CStr, prio, body| {
+            KThread::spawn(name, SchedClass::Fifo(prio), shared.clone(), body)
+                .inspect_err(|e| pr_err!("cannot start {}: {:?}\n", name, e))
+        };
+        // Partial failures unwind through `Drop for Tasks` (reverse order).
+        let mut tasks = Tasks {
+            proto_in: None,
+            servo: None,
+            clock: None,
+            timers: None,
+        };
+        tasks.proto_in = Some(spawn(
+            c_str!("hap_proto_in"),
+            PROTO_IN_PRIORITY,
+            proto_in::proto_in_main,
+        )?);
+        tasks.servo = Some(spawn(
+            c_str!("hap_servo"),
+            SERVO_PRIORITY,
+            servo::servo_main,
+        )?);
+        tasks.clock = Some(spawn(
+            c_str!("hap_clock"),
+            CLOCK_PRIORITY,
+            clock::clock_main,
+        )?);
+        tasks.timers = Some(Timers::start(shared)?);
+        Ok(tasks)
+    }
+}
+
+impl Drop for Tasks {
+    fn drop(&mut self) {
+        // The cycle first (cancelling waits for a running callback), then the
+        // tasks, each released from its wait (`stopping` is already set).
+        drop(self.timers.take());
+        drop(self.clock.take());
+        drop(self.servo.take());
+        drop(self.proto_in.take());
+    }
+}
 
 struct HapticCtrl {
     shared: Arc<Shared>,
-    // Teardown order is explicit in `Drop`.
-    timer: Option<ArcHrTimerHandle<CycleTimer>>,
-    servo: Option<KThread<Shared>>,
-    _stats_dev: Pin<KBox<MiscDeviceRegistration<StatsDevice>>>,
-    _rtf_in_dev: Pin<KBox<MiscDeviceRegistration<RtfInDevice>>>,
+    tasks: Option<Tasks>,
+    devices: Option<Devices>,
 }
 
 impl kernel::Module for HapticCtrl {
     fn init(_module: &'static ThisModule) -> Result<Self> {
         let period_us = module_parameters::period_us.value();
-        if !(250..=10_000).contains(&period_us) {
-            pr_err!("period_us={} out of range 250..=10000\n", period_us);
+        if validate_period_us(period_us).is_err() {
+            pr_err!(
+                "hapticctrl: period_us={} out of range {}..={}\n",
+                period_us,
+                PERIOD_MIN_US,
+                PERIOD_MAX_US
+            );
             return Err(EINVAL);
         }
-        // SAFETY: called once, before any other use of `SHARED`.
-        unsafe { SHARED.init() };
-        let shared = Arc::pin_init(Shared::new(i64::from(period_us) * 1000), GFP_KERNEL)?;
-        *SHARED.lock() = Some(shared.clone());
-
-        let stats_dev = KBox::pin_init(
-            MiscDeviceRegistration::register(MiscDeviceOptions { name: c_str!("hap_stats") }),
-            GFP_KERNEL,
-        )?;
-        let rtf_in_dev = KBox::pin_init(
-            MiscDeviceRegistration::register(MiscDeviceOptions { name: c_str!("hap_rtf_in") }),
-            GFP_KERNEL,
-        )?;
-        let servo = KThread::spawn(
-            c_str!("hap_servo"),
-            SchedClass::Fifo(SERVO_PRIORITY),
-            shared.clone(),
-            servo::servo_main,
-        )?;
-        let timer = CycleTimer::start(shared.clone())?;
+        // Before the kernel switches to high-resolution timers (early boot)
+        // hrtimers expire on the periodic tick: the 3/4-period check would
+        // land on the next cycle's tick and every cycle would miss.
+        let resolution = clock::hrtimer_resolution_ns();
+        if i64::from(resolution) > i64::from(period_us) * 1000 / 20 {
+            pr_err!(
+                "high-resolution timers are not active (resolution {} ns); retry once the clocksource switched (see dmesg)\n",
+                resolution
+            );
+            return Err(EAGAIN);
+        }
+        shared::init_global();
+        let shared = Arc::pin_init(Shared::new(period_us)?, GFP_KERNEL)
+            .inspect_err(|e| pr_err!("cannot create the channels: {:?}\n", e))?;
+        shared::publish(Some(shared.clone()));
+        let mut this = HapticCtrl {
+            shared: shared.clone(),
+            tasks: None,
+            devices: None,
+        };
+        // On error `this` drops: tasks stopped, devices removed, channels freed.
+        this.devices = Some(Devices::register()?);
+        this.tasks = Some(Tasks::start(&shared)?);
         pr_info!(
-            "hapticctrl: loaded, period {} us, crc32c check {:#010x}\n",
+            "hapticctrl: loaded, period {} us, CLOCK/SERVO/PROTO_IN at SCHED_FIFO {}/{}/{}, crc32c check {:#010x}\n",
             period_us,
+            CLOCK_PRIORITY,
+            SERVO_PRIORITY,
+            PROTO_IN_PRIORITY,
             hap_core::crc::crc32c(b"123456789")
         );
-        Ok(HapticCtrl {
-            shared,
-            timer: Some(timer),
-            servo: Some(servo),
-            _stats_dev: stats_dev,
-            _rtf_in_dev: rtf_in_dev,
-        })
+        Ok(this)
     }
 }
 
 impl Drop for HapticCtrl {
     fn drop(&mut self) {
-        self.shared.stopping.store(true, Release);
-        // Timer first (cancel waits for a running callback), then release
-        // SERVO from its wait and stop it.
-        drop(self.timer.take());
-        self.shared.cycle_start.complete_all();
-        drop(self.servo.take());
-        *SHARED.lock() = None;
-        pr_info!("hapticctrl: unloaded\n");
+        let sh = &self.shared;
+        // Termination (spec §3.2): close the client connection, stop the tasks,
+        // then destroy the channels and free the memory.
+        sh.proto.lock().close();
+        sh.stopping.store(true, Release);
+        sh.rtf_out.close();
+        sh.rtf_in.close();
+        sh.cycle_start.complete_all();
+        sh.check_due.complete_all();
+        sh.rtf_in_ready.complete_all();
+        {
+            let mut log = sh.simlog.lock();
+            log.closed = true;
+        }
+        sh.simlog_readable.notify_all();
+        drop(self.tasks.take());
+        drop(self.devices.take());
+        shared::publish(None);
+        pr_info!("unloaded\n");
     }
 }

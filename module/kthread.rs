@@ -82,7 +82,10 @@ impl<T: Send + Sync + 'static> KThread<T> {
         // SAFETY: `task` is a freshly created, not yet running kthread; taking
         // a reference keeps it valid for `kthread_stop_put()` in `drop`.
         unsafe { bindings::get_task_struct(task.as_ptr()) };
-        let this = KThread { task, _start: start };
+        let this = KThread {
+            task,
+            _start: start,
+        };
         match class {
             SchedClass::Fifo(prio) => {
                 let attr = SchedAttr {

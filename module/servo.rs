@@ -1,25 +1,108 @@
 // SPDX-License-Identifier: GPL-2.0
 
-//! SERVO (the spec's hap_servo): waits for the cycle start, runs one servo
-//! step, and loops.
+//! SERVO (the spec's hap_servo): waits at the cycle barrier, then runs one
+//! servo cycle under `mtx_data`: hap-core's `ServoCycle::run` (get_measures →
+//! logical/physical state → cartesian_control → send_commands → simulate_arm)
+//! between the synchronizer's `receive_vp` and `send_vp`, then logs the
+//! simulator's position. The main and the auxiliary (degraded) path are the
+//! same code (spec §3.5); CLOCK's supervisor picks the mode.
+//! No allocation, no printk, no sleeping lock but `mtx_data` inside the cycle.
 
-use crate::{completion::Wait, kthread, shared::Shared};
-use kernel::sync::atomic::{Acquire, Relaxed};
+use crate::{
+    completion::Wait,
+    hap_core::servo::{PowerRequest, ServoInputs, ServoMode},
+    kthread, proto_synchro,
+    shared::{ServoData, Shared},
+};
+use kernel::sync::atomic::{Acquire, Relaxed, Release};
 
 /// SERVO's thread body.
-pub(crate) fn servo_main(shared: &Shared) {
-    while !kthread::should_stop() && !shared.is_stopping() {
-        if shared.cycle_start.wait_timeout(100) == Wait::TimedOut {
-            continue;
-        }
-        if shared.is_stopping() {
+pub(crate) fn servo_main(sh: &Shared) {
+    while !kthread::should_stop() && !sh.is_stopping() {
+        sh.servo_waiting.store(true, Release);
+        let w = sh.cycle_start.wait_timeout(100);
+        sh.servo_waiting.store(false, Release);
+        if sh.is_stopping() {
             break;
         }
-        let latency = shared.now_ns() - shared.cycle_expiry_ns.load(Acquire);
-        shared.last_latency_ns.store(latency, Relaxed);
-        if latency > shared.max_latency_ns.load(Relaxed) {
-            shared.max_latency_ns.store(latency, Relaxed);
+        if w == Wait::TimedOut {
+            continue;
         }
-        shared.servo_cycles.add(1, Relaxed);
+        // The spec's servo_working = TRUE.
+        sh.servo_working.store(true, Release);
+        let tick = sh.tick.load(Acquire);
+        sh.servo_start_ns.store(sh.now_ns(), Release);
+
+        let mut data = sh.data.lock();
+        servo_cycle(sh, &mut data);
+        drop(data);
+
+        inject_overrun(sh);
+        sh.servo_end_ns.store(sh.now_ns(), Release);
+        sh.servo_done_tick.store(tick, Release);
+        sh.servo_working.store(false, Release);
+    }
+}
+
+fn servo_cycle(sh: &Shared, data: &mut ServoData) {
+    // Fail-safe lines cut by CLOCK while SERVO was busy.
+    if sh.inhibit_motors.load(Acquire) {
+        data.cycle.servo.inhibit_motors();
+    }
+    if sh.arm_power_cut.load(Acquire) {
+        data.cycle.servo.power_off();
+    }
+    // Configuration: a fresh copy unless PROTO_IN is writing it.
+    match sh.config.try_read() {
+        Some(cfg) => data.config = *cfg,
+        None => {
+            sh.config_busy.add(1, Relaxed);
+        }
+    }
+    let power_request = match sh.power_request.xchg(0, Relaxed) {
+        1 if !sh.inhibit_motors.load(Acquire) => PowerRequest::On,
+        2 => PowerRequest::Off,
+        _ => PowerRequest::None,
+    };
+    if power_request == PowerRequest::On {
+        sh.power_on_cycle.store(data.cycle.servo.cycle(), Relaxed);
+    }
+    let inputs = ServoInputs {
+        power_request,
+        live_effort: None,
+    };
+    let mode = if sh.mode.load(Acquire) == 0 {
+        ServoMode::Main
+    } else {
+        ServoMode::Degraded
+    };
+
+    let result = proto_synchro::run_cycle(sh, data, &inputs, mode);
+    sh.last_status.store(result.vp.status, Relaxed);
+    if result.extrapolated {
+        sh.vpr_extrapolated.add(1, Relaxed);
+    }
+    // The simulator's position log.
+    let mut rec = [0u8; crate::hap_core::simulator::LogRecord::SIZE];
+    data.cycle.servo.log_record().encode(&mut rec);
+    let mut log = sh.simlog.lock();
+    if !log.closed {
+        log.ring.push_overwrite(&rec);
+    }
+    drop(log);
+    sh.simlog_readable.notify_one();
+}
+
+/// Fault injection (`/dev/hap_fault`): stay busy past the 3/4 check, outside
+/// `mtx_data` so that the fail-safe can still take it.
+fn inject_overrun(sh: &Shared) {
+    let left = sh.fault_overruns.load(Acquire);
+    if left == 0 {
+        return;
+    }
+    sh.fault_overruns.store(left - 1, Release);
+    let until = sh.expiry_ns.load(Acquire) + sh.period_ns() / 8 * 7;
+    while sh.now_ns() < until && !sh.is_stopping() {
+        kernel::time::delay::udelay(kernel::time::Delta::from_micros(5));
     }
 }

@@ -86,9 +86,9 @@ fi
 if [ -n "$udp" ]; then
   qemu+=(-nic "user,model=virtio-net-pci,hostfwd=udp:127.0.0.1:${udp%%:*}-:${udp#*:}")
 fi
-append="console=ttyS0 panic=-1 rdinit=/init loglevel=6 hap.mode=$mode"
+append="console=ttyS0 panic=-1 rdinit=/init loglevel=6 tsc=reliable hap.mode=$mode${HAP_APPEND:+ $HAP_APPEND}"
 [ -n "$args" ] && append="$append hap.args=$args"
-qemu+=(-append "$append")
+qemu+=(-append "$append" ${HAP_QEMU_EXTRA:-})
 log "booting $name (${variant:-base} kernel, accel=$mode${udp:+, udp $udp}); log: $log"
 
 if [ "$background" = 1 ]; then

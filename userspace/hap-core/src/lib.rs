@@ -15,6 +15,7 @@ pub mod clock;
 pub mod config;
 pub mod control;
 pub mod crc;
+pub mod cycle;
 pub mod effort;
 pub mod fixed;
 pub mod io;

@@ -1,0 +1,74 @@
+// SPDX-License-Identifier: GPL-2.0
+
+//! hap_io's kernel side: the arm's power-on request line (the spec's
+//! footnote 3: "a dedicated RT-FIFO, an associated handler and a global
+//! flag"). Motor commands stay inhibited (in hap-core's `Io`) until a
+//! power-on request; the fail-safe inhibits them for good.
+//!
+//! `/dev/hap_power`: write `1` (power on) or `0` (power off), optionally
+//! followed by a newline; anything else is `EINVAL`. Reading gives the arm's
+//! state: `power=<0|1> motors=<0|1> inhibited=<0|1>`.
+
+use crate::{
+    hap_core::vp::status,
+    shared::{self, Shared},
+};
+use core::fmt::Write;
+use kernel::{
+    fs::{File, Kiocb},
+    iov::{IovIterDest, IovIterSource},
+    miscdevice::{MiscDevice, MiscDeviceRegistration},
+    prelude::*,
+    sync::{
+        atomic::{Acquire, Release},
+        Arc,
+    },
+};
+
+pub(crate) struct PowerDevice {
+    shared: Arc<Shared>,
+}
+
+#[vtable]
+impl MiscDevice for PowerDevice {
+    type Ptr = KBox<Self>;
+
+    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+        Ok(KBox::new(
+            PowerDevice {
+                shared: shared::get()?,
+            },
+            GFP_KERNEL,
+        )?)
+    }
+
+    fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
+        let mut buf = [0u8; 4];
+        let len = iov.len();
+        if len == 0 || len > buf.len() {
+            return Err(EINVAL);
+        }
+        let n = iov.copy_from_iter(&mut buf[..len]);
+        let req = match buf.get(..n) {
+            Some(b"1") | Some(b"1\n") => 1,
+            Some(b"0") | Some(b"0\n") => 2,
+            _ => return Err(EINVAL),
+        };
+        kiocb.file().shared.power_request.store(req, Release);
+        Ok(n)
+    }
+
+    fn read_iter(mut kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
+        let sh = &kiocb.file().shared;
+        let st = sh.last_status.load(Acquire);
+        let mut text = crate::stats::TextBuf::<64>::new();
+        let _ = writeln!(
+            text,
+            "power={} motors={} inhibited={}",
+            u8::from(st & status::POWER_ON != 0),
+            u8::from(st & status::MOTORS_ENABLED != 0),
+            u8::from(sh.inhibit_motors.load(Acquire))
+        );
+        iov.simple_read_from_buffer(kiocb.ki_pos_mut(), text.as_bytes())
+    }
+}

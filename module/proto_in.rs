@@ -1,0 +1,65 @@
+// SPDX-License-Identifier: GPL-2.0
+
+//! PROTO_IN (the spec's hap_proto_in): the lowest-priority RT task. Sleeps
+//! until rtf_in holds a frame (`sem_rtf_in`), then under `mtx_proto` lets
+//! hap-core's `ProtoIn` check and decode it into VPr, and carries out the
+//! outcome: configuration published under the rwsem, power request handed to
+//! SERVO, reply queued on rtf_out. Bad frames are counted by reason and
+//! never reach VPr.
+
+use crate::{
+    completion::Wait,
+    hap_core::protocol::{encode, FrameHeader, MAX_FRAME_LEN},
+    kthread,
+    shared::Shared,
+};
+use kernel::sync::atomic::{Acquire, Relaxed, Release};
+
+/// PROTO_IN's thread body.
+pub(crate) fn proto_in_main(sh: &Shared) {
+    let mut frame = [0u8; MAX_FRAME_LEN];
+    while !kthread::should_stop() && !sh.is_stopping() {
+        if sh.rtf_in_ready.wait_timeout(100) == Wait::TimedOut {
+            continue;
+        }
+        while let Some(len) = sh.rtf_in.pop(&mut frame) {
+            if sh.is_stopping() {
+                return;
+            }
+            handle_frame(sh, frame.get(..len).unwrap_or(&[]));
+        }
+    }
+}
+
+fn handle_frame(sh: &Shared, bytes: &[u8]) {
+    let now_cycle = sh.tick.load(Acquire);
+    let mut proto = sh.proto.lock();
+    let outcome = proto.handle(bytes, now_cycle, sh.period_us);
+    let session = proto.session();
+    let config = if outcome.config_changed {
+        Some(*proto.config())
+    } else {
+        None
+    };
+    drop(proto);
+
+    if let Some(cfg) = config {
+        *sh.config.write() = cfg;
+    }
+    if let Some(on) = outcome.power {
+        sh.power_request.store(if on { 1 } else { 2 }, Release);
+    }
+    if let Some(reply) = outcome.reply {
+        let header = FrameHeader {
+            control: 0,
+            session,
+            seq: sh.answer_seq.fetch_add(1, Relaxed).wrapping_add(1),
+            timestamp_us: (sh.now_ns() / 1000) as u32,
+        };
+        let mut out = [0u8; MAX_FRAME_LEN];
+        let n = encode(&header, &reply, &mut out);
+        if !sh.rtf_out.push_overwrite(&out[..n]) {
+            sh.answers_dropped.add(1, Relaxed);
+        }
+    }
+}

@@ -1,0 +1,194 @@
+// SPDX-License-Identifier: GPL-2.0
+
+//! hap_simulator's channels to userspace (the spec's simulator RT-FIFOs):
+//! - `/dev/hap_effort`: the user's effort on the handle. One `write()` of a
+//!   whole effort-sequence text (hap-core's `.eff` format, at most 64 KiB)
+//!   loads it; it plays from the servo cycle it was loaded at. A parse error
+//!   gets `EINVAL` and a dmesg line with its line and column. A single line
+//!   `live fx fy fz tx ty tz` (N, N·m) sets a live effort that overrides the
+//!   sequence; `live off` ends it; `clear` unloads the sequence.
+//! - `/dev/hap_simlog`: the position log, whole `LogRecord`s (288 bytes
+//!   each, hap-core's layout); a read returns as many whole records as fit,
+//!   blocking until one is there (`EAGAIN` with `O_NONBLOCK`, end of file
+//!   after the fail-safe). When nobody reads, the oldest records are dropped.
+
+use crate::{
+    hap_core::{
+        effort::{parse_milli, EffortSample},
+        fixed::{Fx, Vec3, Wrench},
+        simulator::LogRecord,
+    },
+    shared::{self, Shared},
+};
+use kernel::{
+    fs::{File, Kiocb},
+    iov::{IovIterDest, IovIterSource},
+    miscdevice::{MiscDevice, MiscDeviceRegistration},
+    prelude::*,
+    sync::{
+        atomic::{Relaxed, Release},
+        Arc,
+    },
+};
+
+/// Largest effort-sequence write.
+const EFFORT_MAX_BYTES: usize = 64 * 1024;
+
+pub(crate) struct EffortDevice {
+    shared: Arc<Shared>,
+}
+
+/// `live fx fy fz tx ty tz`: the six values in thousandths, or `None`.
+fn parse_live(args: &[u8]) -> Option<[i32; 6]> {
+    let mut v = [0i32; 6];
+    let mut it = args
+        .split(|c| *c == b' ' || *c == b'\t')
+        .filter(|w| !w.is_empty());
+    for slot in v.iter_mut() {
+        *slot = parse_milli(it.next()?).ok()?;
+    }
+    if it.next().is_some() {
+        return None;
+    }
+    Some(v)
+}
+
+fn milli(m: i32) -> Fx {
+    Fx::from_milli(i64::from(m))
+}
+
+#[vtable]
+impl MiscDevice for EffortDevice {
+    type Ptr = KBox<Self>;
+
+    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+        Ok(KBox::new(
+            EffortDevice {
+                shared: shared::get()?,
+            },
+            GFP_KERNEL,
+        )?)
+    }
+
+    fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
+        let sh = &kiocb.file().shared;
+        let len = iov.len();
+        if len == 0 || len > EFFORT_MAX_BYTES {
+            return Err(EINVAL);
+        }
+        let mut text = KVVec::new();
+        let n = iov.copy_from_iter_vec(&mut text, GFP_KERNEL)?;
+        let body = text.strip_suffix(b"\n").unwrap_or(&text);
+        if body == b"clear" {
+            let mut d = sh.data.lock();
+            let _ = d.cycle.servo.load_effort(&[]);
+            sh.effort_loaded_cycle.store(d.cycle.servo.cycle(), Relaxed);
+            return Ok(n);
+        }
+        if body == b"live off" {
+            sh.data.lock().cycle.servo.set_live_effort(None);
+            return Ok(n);
+        }
+        if let Some(args) = body.strip_prefix(b"live ") {
+            let v = parse_live(args).ok_or(EINVAL)?;
+            let wrench = Wrench {
+                force: Vec3 {
+                    x: milli(v[0]),
+                    y: milli(v[1]),
+                    z: milli(v[2]),
+                },
+                torque: Vec3 {
+                    x: milli(v[3]),
+                    y: milli(v[4]),
+                    z: milli(v[5]),
+                },
+            };
+            let mut sample = EffortSample::NONE;
+            sample.wrench = wrench;
+            sample.dead_man = true;
+            sh.data.lock().cycle.servo.set_live_effort(Some(sample));
+            return Ok(n);
+        }
+        let mut d = sh.data.lock();
+        match d.cycle.servo.load_effort_text(&text) {
+            Ok(keys) => {
+                let cycle = d.cycle.servo.cycle();
+                drop(d);
+                sh.effort_loaded_cycle.store(cycle, Release);
+                pr_info!(
+                    "effort sequence loaded: {} keyframes at cycle {}\n",
+                    keys,
+                    cycle
+                );
+                Ok(n)
+            }
+            Err(e) => {
+                drop(d);
+                pr_warn!(
+                    "hapticctrl: effort sequence refused: line {} column {}: {:?}\n",
+                    e.line,
+                    e.column,
+                    e.kind
+                );
+                Err(EINVAL)
+            }
+        }
+    }
+}
+
+pub(crate) struct SimLogDevice {
+    shared: Arc<Shared>,
+    nonblock: bool,
+}
+
+#[vtable]
+impl MiscDevice for SimLogDevice {
+    type Ptr = KBox<Self>;
+
+    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+        let nonblock = file.flags() & kernel::fs::file::flags::O_NONBLOCK != 0;
+        Ok(KBox::new(
+            SimLogDevice {
+                shared: shared::get()?,
+                nonblock,
+            },
+            GFP_KERNEL,
+        )?)
+    }
+
+    fn read_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
+        let me = kiocb.file();
+        let sh = &me.shared;
+        if iov.len() < LogRecord::SIZE {
+            return Err(EINVAL);
+        }
+        let mut rec = [0u8; LogRecord::SIZE];
+        let mut total = 0usize;
+        {
+            let mut log = sh.simlog.lock();
+            while log.ring.is_empty() {
+                if log.closed {
+                    return Ok(0);
+                }
+                if me.nonblock {
+                    return Err(EAGAIN);
+                }
+                if sh.simlog_readable.wait_interruptible(&mut log) {
+                    return Err(ERESTARTSYS);
+                }
+            }
+        }
+        // Copy record by record without holding the lock across user copies.
+        while iov.len() >= LogRecord::SIZE {
+            let got = sh.simlog.lock().ring.pop(&mut rec);
+            if got.is_none() {
+                break;
+            }
+            if iov.copy_to_iter(&rec) != LogRecord::SIZE {
+                return if total > 0 { Ok(total) } else { Err(EFAULT) };
+            }
+            total += LogRecord::SIZE;
+        }
+        Ok(total)
+    }
+}
