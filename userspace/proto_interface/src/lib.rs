@@ -185,7 +185,10 @@ impl Bridge {
     pub fn stop(&mut self) {
         self.shared.stop.store(true, Ordering::SeqCst);
         let deadline = Instant::now() + Duration::from_secs(1);
-        for h in [self.server.take(), self.client.take()].into_iter().flatten() {
+        for h in [self.server.take(), self.client.take()]
+            .into_iter()
+            .flatten()
+        {
             while !h.is_finished() && Instant::now() < deadline {
                 std::thread::sleep(Duration::from_millis(10));
             }

@@ -77,9 +77,8 @@ fn main() -> ExitCode {
         println!("listening on {}", bridge.local_addr);
     }
     eprintln!(
-        "proto_interface: listening on udp {} ({} -> {}, {} -> client)",
+        "proto_interface: listening on udp {} (udp -> {}, {} -> client)",
         bridge.local_addr,
-        "udp",
         cfg.rtf_in.display(),
         cfg.rtf_out.display()
     );

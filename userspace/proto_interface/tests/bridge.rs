@@ -30,7 +30,10 @@ fn mkfifo(p: &Path) {
 
 fn enc(seq: u32, f: &Frame) -> Vec<u8> {
     let mut b = [0u8; MAX_FRAME_LEN];
-    let h = FrameHeader { seq, ..Default::default() };
+    let h = FrameHeader {
+        seq,
+        ..Default::default()
+    };
     let n = encode(&h, f, &mut b);
     b[..n].to_vec()
 }
@@ -52,7 +55,14 @@ impl Rig {
         mkfifo(&rin);
         mkfifo(&rout);
         let mut child = Command::new(env!("CARGO_BIN_EXE_proto_interface"))
-            .args(["--bind", "127.0.0.1", "--port", "0", "--print-addr", "--rtf-in"])
+            .args([
+                "--bind",
+                "127.0.0.1",
+                "--port",
+                "0",
+                "--print-addr",
+                "--rtf-in",
+            ])
             .arg(&rin)
             .arg("--rtf-out")
             .arg(&rout)
@@ -64,8 +74,14 @@ impl Rig {
             .spawn()
             .unwrap();
         let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-        let addr: SocketAddr = line.trim().trim_start_matches("listening on ").parse().unwrap();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let addr: SocketAddr = line
+            .trim()
+            .trim_start_matches("listening on ")
+            .parse()
+            .unwrap();
 
         // Fake kernel, input side: reassemble whole frames from the pipe.
         let (tx, frames) = mpsc::channel();
@@ -94,12 +110,19 @@ impl Rig {
             }
         });
         let out = File::options().write(true).open(rout).unwrap();
-        Rig { dir, child, addr, frames, out: Some(out) }
+        Rig {
+            dir,
+            child,
+            addr,
+            frames,
+            out: Some(out),
+        }
     }
 
     fn client(&self) -> UdpSocket {
         let s = UdpSocket::bind("127.0.0.1:0").unwrap();
-        s.set_read_timeout(Some(Duration::from_millis(1000))).unwrap();
+        s.set_read_timeout(Some(Duration::from_millis(1000)))
+            .unwrap();
         s.connect(self.addr).unwrap();
         s
     }
@@ -142,7 +165,12 @@ impl Rig {
         loop {
             if let Some(st) = self.child.try_wait().unwrap() {
                 let mut e = String::new();
-                self.child.stderr.take().unwrap().read_to_string(&mut e).unwrap();
+                self.child
+                    .stderr
+                    .take()
+                    .unwrap()
+                    .read_to_string(&mut e)
+                    .unwrap();
                 return (st, e);
             }
             if t.elapsed() > within {
@@ -171,8 +199,12 @@ fn forwards_drops_and_routes() {
     // Before any session: only OpenSession passes.
     a.send(&enc(1, &Frame::PowerRequest(true))).unwrap();
     rig.no_frame();
-    a.send(&enc(2, &Frame::OpenSession { client_nonce: 9 })).unwrap();
-    assert_eq!(rig.next_frame(), Some(Frame::OpenSession { client_nonce: 9 }));
+    a.send(&enc(2, &Frame::OpenSession { client_nonce: 9 }))
+        .unwrap();
+    assert_eq!(
+        rig.next_frame(),
+        Some(Frame::OpenSession { client_nonce: 9 })
+    );
 
     // Junk of every kind, from the client itself: dropped, never truncated.
     a.send(&[0x48u8; 91]).unwrap();
@@ -181,9 +213,17 @@ fn forwards_drops_and_routes() {
     let mut bad = enc(3, &Frame::PowerRequest(true));
     bad[18] ^= 0xff; // CRC mismatch
     a.send(&bad).unwrap();
-    a.send(&enc(4, &Frame::SessionAck { client_nonce: 1, period_us: 1 })).unwrap();
+    a.send(&enc(
+        4,
+        &Frame::SessionAck {
+            client_nonce: 1,
+            period_us: 1,
+        },
+    ))
+    .unwrap();
     // A stray source, even with a valid OpenSession: dropped.
-    b.send(&enc(1, &Frame::OpenSession { client_nonce: 5 })).unwrap();
+    b.send(&enc(1, &Frame::OpenSession { client_nonce: 5 }))
+        .unwrap();
     b.send(&enc(2, &Frame::PowerRequest(true))).unwrap();
     rig.no_frame();
 
@@ -194,12 +234,16 @@ fn forwards_drops_and_routes() {
     assert_eq!(rig.next_frame(), Some(Frame::DetachVirtualObject));
 
     // Answers go to the client only.
-    let ack = Frame::SessionAck { client_nonce: 9, period_us: 1000 };
+    let ack = Frame::SessionAck {
+        client_nonce: 9,
+        period_us: 1000,
+    };
     rig.answer(&ack);
     let mut buf = [0u8; 256];
     let n = a.recv(&mut buf).unwrap();
     assert_eq!(decode(&buf[..n]).unwrap().1, ack);
-    b.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+    b.set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
     assert!(b.recv(&mut buf).is_err(), "stray client got an answer");
 
     // A flood of garbage from the stray host changes nothing.
@@ -231,8 +275,12 @@ fn forwards_drops_and_routes() {
     // CloseSession frees the bridge for another client.
     a.send(&enc(8, &Frame::CloseSession)).unwrap();
     assert_eq!(rig.next_frame(), Some(Frame::CloseSession));
-    b.send(&enc(3, &Frame::OpenSession { client_nonce: 6 })).unwrap();
-    assert_eq!(rig.next_frame(), Some(Frame::OpenSession { client_nonce: 6 }));
+    b.send(&enc(3, &Frame::OpenSession { client_nonce: 6 }))
+        .unwrap();
+    assert_eq!(
+        rig.next_frame(),
+        Some(Frame::OpenSession { client_nonce: 6 })
+    );
 
     // The module goes away (the writer side closes): the bridge exits cleanly.
     rig.out = None;
@@ -247,13 +295,19 @@ fn session_expires_and_sigterm_exits() {
     let mut rig = Rig::start("exp", &["--session-timeout-ms", "300"]);
     let a = rig.client();
     let b = rig.client();
-    a.send(&enc(1, &Frame::OpenSession { client_nonce: 1 })).unwrap();
+    a.send(&enc(1, &Frame::OpenSession { client_nonce: 1 }))
+        .unwrap();
     assert!(rig.next_frame().is_some());
-    b.send(&enc(1, &Frame::OpenSession { client_nonce: 2 })).unwrap();
+    b.send(&enc(1, &Frame::OpenSession { client_nonce: 2 }))
+        .unwrap();
     rig.no_frame();
     std::thread::sleep(Duration::from_millis(400));
-    b.send(&enc(2, &Frame::OpenSession { client_nonce: 2 })).unwrap();
-    assert_eq!(rig.next_frame(), Some(Frame::OpenSession { client_nonce: 2 }));
+    b.send(&enc(2, &Frame::OpenSession { client_nonce: 2 }))
+        .unwrap();
+    assert_eq!(
+        rig.next_frame(),
+        Some(Frame::OpenSession { client_nonce: 2 })
+    );
     // The old client is now the stray one.
     a.send(&enc(2, &Frame::PowerRequest(false))).unwrap();
     rig.no_frame();
@@ -263,15 +317,30 @@ fn session_expires_and_sigterm_exits() {
     assert!(st.success(), "{st:?} {err}");
     assert!(err.contains("exiting (SIGTERM)"), "{err}");
     assert!(err.contains("sessions_expired: 1"), "{err}");
-    assert!(rig.stats().contains("rejected_stray_source: 2"), "{}", rig.stats());
+    assert!(
+        rig.stats().contains("rejected_stray_source: 2"),
+        "{}",
+        rig.stats()
+    );
 }
 
 #[test]
 fn bad_command_line_is_refused() {
-    for args in [&["--port", "70000"][..], &["--bind", "nowhere"], &["--session-timeout-ms", "0"], &["--bogus"]] {
-        let o = Command::new(env!("CARGO_BIN_EXE_proto_interface")).args(args).output().unwrap();
+    for args in [
+        &["--port", "70000"][..],
+        &["--bind", "nowhere"],
+        &["--session-timeout-ms", "0"],
+        &["--bogus"],
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_proto_interface"))
+            .args(args)
+            .output()
+            .unwrap();
         assert_eq!(o.status.code(), Some(2), "{args:?}");
-        assert!(String::from_utf8_lossy(&o.stderr).contains("error:"), "{args:?}");
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains("error:"),
+            "{args:?}"
+        );
     }
 }
 
@@ -283,7 +352,14 @@ fn sigterm_while_waiting_for_the_module() {
     let (rin, rout) = (dir.join("rtf_in"), dir.join("rtf_out"));
     mkfifo(&rin); // no reader: open() for writing blocks
     let mut child = Command::new(env!("CARGO_BIN_EXE_proto_interface"))
-        .args(["--bind", "127.0.0.1", "--port", "0", "--no-stats-file", "--rtf-in"])
+        .args([
+            "--bind",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--no-stats-file",
+            "--rtf-in",
+        ])
         .arg(&rin)
         .arg("--rtf-out")
         .arg(&rout) // does not exist yet
@@ -307,6 +383,9 @@ fn sigterm_while_waiting_for_the_module() {
     let mut e = String::new();
     child.stderr.take().unwrap().read_to_string(&mut e).unwrap();
     assert!(st.success(), "{e}");
-    assert!(e.contains("waiting for") && e.contains("exiting (SIGTERM)"), "{e}");
+    assert!(
+        e.contains("waiting for") && e.contains("exiting (SIGTERM)"),
+        "{e}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
