@@ -2,7 +2,7 @@
 //! protocol (PROTO_IN writes them under the configuration rwsem, SERVO reads
 //! them each cycle). Names follow Haption's VirtuoseAPI where one applies.
 
-use crate::fixed::{Fx, Pose, Vec3};
+use super::fixed::{Fx, Pose, Vec3};
 
 /// How the arm is commanded (VirtuoseAPI `VirtCommandType`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -375,6 +375,9 @@ const fn apply_sign(r: u64, neg: bool) -> Fx {
 /// plain integers or both Q32.32 raws; `u64::MAX` when the integer part
 /// needs more than 31 bits. `b != 0`.
 const fn udiv_q32(a: u64, b: u64) -> u64 {
+    if b == 0 {
+        return u64::MAX;
+    }
     let q = a / b;
     let mut r = a % b;
     if q >= (1u64 << 31) {

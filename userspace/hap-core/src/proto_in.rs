@@ -97,8 +97,13 @@ pub struct ProtoCounters {
 impl ProtoCounters {
     /// All rejected frames.
     pub fn rejected_total(&self) -> u64 {
-        let d = self.decode_rejects.iter().fold(0u64, |a, b| a.saturating_add(*b));
-        self.protocol_rejects.iter().fold(d, |a, b| a.saturating_add(*b))
+        let d = self
+            .decode_rejects
+            .iter()
+            .fold(0u64, |a, b| a.saturating_add(*b));
+        self.protocol_rejects
+            .iter()
+            .fold(d, |a, b| a.saturating_add(*b))
     }
 }
 
@@ -338,7 +343,13 @@ mod tests {
         let mut p = ProtoIn::new();
         let o = handle(&mut p, 0, 1, 0, &vpr_frame(10));
         assert_eq!(o.rejected, Some(Reject::NoSession));
-        assert!(matches!(o.reply, Some(Frame::Error { reason: ERROR_NO_SESSION, rejected_seq: 1 })));
+        assert!(matches!(
+            o.reply,
+            Some(Frame::Error {
+                reason: ERROR_NO_SESSION,
+                rejected_seq: 1
+            })
+        ));
         assert!(!p.vpr().valid);
         let s = open(&mut p);
         assert_ne!(s, 0);
@@ -363,7 +374,13 @@ mod tests {
         assert_eq!(p.vpr().pose.position.x, Fx::from_ratio(1, 100));
         // Wrap-around is newer.
         let mut p = ProtoIn::new();
-        let o = handle(&mut p, 0, u32::MAX, 0, &Frame::OpenSession { client_nonce: 1 });
+        let o = handle(
+            &mut p,
+            0,
+            u32::MAX,
+            0,
+            &Frame::OpenSession { client_nonce: 1 },
+        );
         assert!(o.accepted);
         let s = p.session();
         assert!(handle(&mut p, s, 0, 0, &vpr_frame(5)).vpr_updated);
@@ -373,7 +390,13 @@ mod tests {
     fn config_power_and_acks() {
         let mut p = ProtoIn::new();
         let s = open(&mut p);
-        let o = handle(&mut p, s, 2, CTRL_ACK_REQUEST, &Frame::SetCommandType(CommandType::Impedance));
+        let o = handle(
+            &mut p,
+            s,
+            2,
+            CTRL_ACK_REQUEST,
+            &Frame::SetCommandType(CommandType::Impedance),
+        );
         assert!(o.config_changed);
         assert_eq!(p.config().command_type, CommandType::Impedance);
         assert_eq!(
@@ -396,7 +419,16 @@ mod tests {
     fn controller_frames_are_not_requests() {
         let mut p = ProtoIn::new();
         let s = open(&mut p);
-        let o = handle(&mut p, s, 2, 0, &Frame::Ack { acked_type: FrameType::Ack, acked_seq: 0 });
+        let o = handle(
+            &mut p,
+            s,
+            2,
+            0,
+            &Frame::Ack {
+                acked_type: FrameType::Ack,
+                acked_seq: 0,
+            },
+        );
         assert_eq!(o.rejected, Some(Reject::NotARequest));
     }
 
@@ -415,7 +447,10 @@ mod tests {
         p.close();
         assert_eq!(p.session(), 0);
         assert!(!p.vpr().valid);
-        assert_eq!(handle(&mut p, s, 3, 0, &vpr_frame(1)).rejected, Some(Reject::NoSession));
+        assert_eq!(
+            handle(&mut p, s, 3, 0, &vpr_frame(1)).rejected,
+            Some(Reject::NoSession)
+        );
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! (the spec's shared memories): `VpReceived` (VPr, the client's virtual
 //! object as PROTO_IN decoded it) and `VpSent` (VP, what SERVO answers).
 
-use crate::fixed::{Pose, Twist, Wrench};
+use super::fixed::{Pose, Twist, Wrench};
 
 /// VPr: the client's virtual object, as last received.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -51,5 +51,9 @@ fn no_i128_in_hap_core_kernel_code() {
             }
         }
     }
-    assert!(offenders.is_empty(), "128-bit integers in kernel-compiled code:\n{}", offenders.join("\n"));
+    assert!(
+        offenders.is_empty(),
+        "128-bit integers in kernel-compiled code:\n{}",
+        offenders.join("\n")
+    );
 }
