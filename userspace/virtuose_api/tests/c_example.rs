@@ -9,9 +9,13 @@ use virtuose_api::fake_peer::{FakePeer, FakePeerConfig};
 fn staticlib() -> Option<PathBuf> {
     // target/<profile>/deps/<this test> -> target/<profile>/libvirtuose_api.a
     let exe = std::env::current_exe().ok()?;
-    let dir = exe.parent()?.parent()?;
-    let lib = dir.join("libvirtuose_api.a");
-    lib.exists().then_some(lib)
+    // (or target/<profile>/deps/ when the library was built as another
+    // member's dependency and not uplifted).
+    let deps = exe.parent()?;
+    let dir = deps.parent()?;
+    [dir.join("libvirtuose_api.a"), deps.join("libvirtuose_api.a")]
+        .into_iter()
+        .find(|p| p.exists())
 }
 
 #[test]
