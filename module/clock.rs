@@ -247,7 +247,7 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
             }
         }
         pr_warn!(
-            "hapticctrl: fail-safe ({}): step {}/{}: {}\n",
+            "fail-safe ({}): step {}/{}: {}\n",
             cause.name(),
             i + 1,
             FAIL_SAFE_SEQUENCE.len(),

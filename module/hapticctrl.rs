@@ -177,7 +177,7 @@ impl kernel::Module for HapticCtrl {
         let period_us = module_parameters::period_us.value();
         if validate_period_us(period_us).is_err() {
             pr_err!(
-                "hapticctrl: period_us={} out of range {}..={}\n",
+                "period_us={} out of range {}..={}\n",
                 period_us,
                 PERIOD_MIN_US,
                 PERIOD_MAX_US
@@ -208,7 +208,7 @@ impl kernel::Module for HapticCtrl {
         this.devices = Some(Devices::register()?);
         this.tasks = Some(Tasks::start(&shared)?);
         pr_info!(
-            "hapticctrl: loaded, period {} us, CLOCK/SERVO/PROTO_IN at SCHED_FIFO {}/{}/{}, crc32c check {:#010x}\n",
+            "loaded, period {} us, CLOCK/SERVO/PROTO_IN at SCHED_FIFO {}/{}/{}, crc32c check {:#010x}\n",
             period_us,
             CLOCK_PRIORITY,
             SERVO_PRIORITY,

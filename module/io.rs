@@ -25,6 +25,19 @@ use kernel::{
     },
 };
 
+/// The arm's status bits as the hardware lines show them: SERVO's last
+/// answer, with the fail-safe's cuts applied (SERVO no longer runs after it).
+pub(crate) fn arm_status(sh: &Shared) -> u32 {
+    let mut st = sh.last_status.load(Acquire);
+    if sh.inhibit_motors.load(Acquire) {
+        st &= !status::MOTORS_ENABLED;
+    }
+    if sh.arm_power_cut.load(Acquire) {
+        st &= !(status::POWER_ON | status::MOTORS_ENABLED);
+    }
+    st
+}
+
 pub(crate) struct PowerDevice {
     shared: Arc<Shared>,
 }
@@ -60,7 +73,7 @@ impl MiscDevice for PowerDevice {
 
     fn read_iter(mut kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
         let sh = &kiocb.file().shared;
-        let st = sh.last_status.load(Acquire);
+        let st = arm_status(sh);
         let mut text = crate::stats::TextBuf::<64>::new();
         let _ = writeln!(
             text,

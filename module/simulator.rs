@@ -14,7 +14,7 @@
 
 use crate::{
     hap_core::{
-        effort::{parse_milli, EffortSample},
+        effort::{parse_milli, validate_effort_sequence, EffortSample, EFFORT_CAPACITY},
         fixed::{Fx, Vec3, Wrench},
         simulator::LogRecord,
     },
@@ -109,30 +109,28 @@ impl MiscDevice for EffortDevice {
             sh.data.lock().cycle.servo.set_live_effort(Some(sample));
             return Ok(n);
         }
-        let mut d = sh.data.lock();
-        match d.cycle.servo.load_effort_text(&text) {
-            Ok(keys) => {
-                let cycle = d.cycle.servo.cycle();
-                drop(d);
-                sh.effort_loaded_cycle.store(cycle, Release);
-                pr_info!(
-                    "effort sequence loaded: {} keyframes at cycle {}\n",
-                    keys,
-                    cycle
-                );
-                Ok(n)
-            }
-            Err(e) => {
-                drop(d);
-                pr_warn!(
-                    "hapticctrl: effort sequence refused: line {} column {}: {:?}\n",
-                    e.line,
-                    e.column,
-                    e.kind
-                );
-                Err(EINVAL)
-            }
+        // Validate before taking mtx_data: a refused text changes nothing
+        // and never holds SERVO's lock while parsing.
+        if let Err(e) = validate_effort_sequence(&text, EFFORT_CAPACITY) {
+            pr_warn!(
+                "effort sequence refused: line {} column {}: {:?}\n",
+                e.line,
+                e.column,
+                e.kind
+            );
+            return Err(EINVAL);
         }
+        let mut d = sh.data.lock();
+        let keys = d.cycle.servo.load_effort_text(&text).map_err(|_| EINVAL)?;
+        let cycle = d.cycle.servo.cycle();
+        drop(d);
+        sh.effort_loaded_cycle.store(cycle, Release);
+        pr_info!(
+            "effort sequence loaded: {} keyframes at cycle {}\n",
+            keys,
+            cycle
+        );
+        Ok(n)
     }
 }
 

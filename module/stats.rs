@@ -103,7 +103,7 @@ fn render(sh: &Shared, out: &mut [u8]) -> usize {
         1 => "degraded",
         _ => "fail_safe",
     };
-    let status = sh.last_status.load(Acquire);
+    let status = crate::io::arm_status(sh);
     let _ = (|| -> core::fmt::Result {
         writeln!(
             w,

@@ -28,7 +28,7 @@ cp "$HAP_ROOT/tests/qemu/lib.sh" "$root/tests/lib.sh"
 [ -f "$HAP_ROOT/scripts/hapticctrl.sh" ] && cp "$HAP_ROOT/scripts/hapticctrl.sh" "$root/usr/sbin/hapticctrl.sh"
 # Static userspace binaries, when built (scripts/build-userspace-static.sh).
 static_dir="$HAP_ROOT/userspace/target/x86_64-unknown-linux-gnu/release"
-for b in proto_interface hapctl hap_guest_tool; do
+for b in proto_interface hapctl hapdev; do
   [ -x "$static_dir/$b" ] && cp "$static_dir/$b" "$root/usr/bin/$b"
 done
 for extra in "$@"; do

@@ -17,12 +17,14 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 
 BINDGEN_VERSION=0.73.2
-STAMP_VERSION=3 # bump when the package list below changes
+STAMP_VERSION=4 # bump when the package list below changes
 
 APT_PACKAGES_BOOKWORM=(
   build-essential flex bison bc cpio kmod libelf-dev busybox-static
-  python3 rsync xz-utils zstd
+  python3 rsync xz-utils zstd file
 )
+# Optional: the demo's browser test (it says SKIPPED without it).
+APT_PACKAGES_OPTIONAL=(chromium)
 APT_PACKAGES_SECURITY=(
   rustc-web rust-web-src clang-22 lld-22 llvm-22 libclang-22-dev
 )
@@ -41,6 +43,7 @@ toolchain_ok() {
   command -v clang-22 >/dev/null && command -v ld.lld-22 >/dev/null || return 1
   [ -x "$HAP_TOOLS/bin/bindgen" ] && "$HAP_TOOLS/bin/bindgen" --version | grep -q " $BINDGEN_VERSION\$" || return 1
   command -v qemu-system-x86_64 >/dev/null && [ -x /bin/busybox ] || return 1
+  command -v chromium >/dev/null || [ -f "$HAP_CACHE/chromium.skipped" ] || return 1
   ls /usr/src/linux-source-7.3.tar.* >/dev/null 2>&1 || return 1
   return 0
 }
@@ -103,6 +106,18 @@ if [ ${#missing[@]} -gt 0 ]; then
   fi
   $SUDO apt-get install -y -q --no-install-recommends -o Acquire::Retries=3 "${missing[@]}" >/dev/null
 fi
+
+for p in "${APT_PACKAGES_OPTIONAL[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' && continue
+  plan=$($SUDO apt-get -s -y --no-install-recommends install "$p" 2>&1 || true)
+  if echo "$plan" | grep -qE '^(Remv|Inst [^ ]+ \[)' || ! echo "$plan" | grep -q "^Inst $p "; then
+    log "warning: not installing optional $p (apt would change installed packages or cannot find it)"
+    touch "$HAP_CACHE/chromium.skipped"
+  else
+    log "apt: $p (optional, for the browser test)"
+    $SUDO apt-get install -y -q --no-install-recommends -o Acquire::Retries=3 "$p" >/dev/null || touch "$HAP_CACHE/chromium.skipped"
+  fi
+done
 
 # bindgen-cli at a pinned version, built with the machine's cargo into our tool dir.
 if ! { [ -x "$HAP_TOOLS/bin/bindgen" ] && "$HAP_TOOLS/bin/bindgen" --version | grep -q " $BINDGEN_VERSION\$"; }; then

@@ -211,6 +211,26 @@ pub fn parse_effort_sequence(
     text: &[u8],
     out: &mut [EffortKeyframe],
 ) -> Result<usize, EffortParseError> {
+    let capacity = out.len();
+    parse_into(text, capacity, |i, kf| {
+        if let Some(slot) = out.get_mut(i) {
+            *slot = kf;
+        }
+    })
+}
+
+/// Check an effort sequence without storing it: the number of keyframes it
+/// holds (at most `capacity`), or the same error `parse_effort_sequence`
+/// would return.
+pub fn validate_effort_sequence(text: &[u8], capacity: usize) -> Result<usize, EffortParseError> {
+    parse_into(text, capacity, |_, _| {})
+}
+
+fn parse_into(
+    text: &[u8],
+    capacity: usize,
+    mut sink: impl FnMut(usize, EffortKeyframe),
+) -> Result<usize, EffortParseError> {
     let mut n = 0usize;
     let mut last_line = 0u32;
     let mut prev_t: Option<u32> = None;
@@ -292,10 +312,10 @@ pub fn parse_effort_sequence(
         let [a, b, c, d, e, f] = milli;
         kf.force_mn = [a, b, c];
         kf.torque_mnm = [d, e, f];
-        match out.get_mut(n) {
-            Some(slot) => *slot = kf,
-            None => return Err(err(0, EffortErrorKind::TooManyKeyframes)),
+        if n >= capacity {
+            return Err(err(0, EffortErrorKind::TooManyKeyframes));
         }
+        sink(n, kf);
         n += 1;
         prev_t = Some(kf.t_ms);
     }
@@ -348,12 +368,14 @@ impl EffortPlayer {
         n
     }
 
-    /// Parse `text` straight into the player's storage.
+    /// Parse and load `text`. On error the current sequence is kept as it
+    /// was (the text is validated before anything is overwritten).
     pub fn load_text(&mut self, text: &[u8]) -> Result<usize, EffortParseError> {
-        let r = parse_effort_sequence(text, &mut self.keys);
-        self.len = *r.as_ref().unwrap_or(&0);
+        validate_effort_sequence(text, self.keys.len())?;
+        let n = parse_effort_sequence(text, &mut self.keys)?;
+        self.len = n;
         self.cursor = 0;
-        r
+        Ok(n)
     }
 
     pub fn clear(&mut self) {

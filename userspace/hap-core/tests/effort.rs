@@ -137,3 +137,16 @@ proptest! {
         prop_assert_eq!(parse_milli(s.as_bytes()), Ok(m));
     }
 }
+
+#[test]
+fn a_refused_sequence_keeps_the_loaded_one() {
+    use hap_core::effort::EffortPlayer;
+    let mut p = EffortPlayer::new();
+    let good = b"0 1 0 0 0 0 0\n1000 2 0 0 0 0 0\n";
+    assert_eq!(p.load_text(good), Ok(2));
+    let before = p.sample(500_000);
+    let bad = b"0 1 2 3\n";
+    assert!(p.load_text(bad).is_err());
+    assert_eq!(p.len(), 2, "the loaded sequence survives a refused load");
+    assert_eq!(p.sample(500_000), before);
+}

@@ -1,0 +1,49 @@
+#!/bin/sh
+# qemu: --icount --timeout 300
+# Spec §4.1 phase 2: after power-on the servo loop couples the arm to the
+# client's virtual object (VPr stream on rtf_in); answers on rtf_out carry
+# the coupling wrench; bad frames are rejected and counted while the loop runs.
+. /tests/lib.sh
+echo "# mode: $HAP_MODE"
+check "insmod" insmod $HAP_KO
+
+# Answers need a session; a VPr without one is refused and answered with an error.
+check "a VPr frame without a session is accepted by the device" hapdev send --session 9 --seq 5 vpr 0 0 0
+sleep 0.1
+expect "rejected as no_session" "$(stat_value rejected.no_session)" = 1
+
+# The user holds the handle (dead-man switch closed), applying no force:
+# force feedback only acts on a held handle.
+check "the user grips the handle (live effort, dead-man on)" sh -c 'echo "live 0 0 0 0 0 0" > /dev/hap_effort'
+# Couple to an object 3 cm in front of and 2 cm above the handle, for 3 s.
+hapdev couple --offset 0.03,0,0.02 --ms 3000 > /tmp/couple.txt 2>&1
+rc=$?
+sed 's/^/# /' /tmp/couple.txt
+expect "couple session ran" "$rc" = 0
+v() { sed -n "s/^$1: \([-0-9]*\).*/\1/p" /tmp/couple.txt; }
+expect "answers received (>= 2000 in 3 s)" "$(v answers)" -ge 2000
+expect "answers marked coupled" "$(v coupled_answers)" -ge 1000
+expect "the handle started ~36 mm away" "$(v first_distance_mm)" -ge 30
+expect "the handle was pulled to within 5 mm" "$(v last_distance_mm)" -le 5
+expect "answers carried a coupling force (mN)" "$(v max_coupling_force_mN)" -ge 100
+expect "power on (the client's power request)" "$(stat_value power)" = 1
+expect "frames in counted" "$(stat_value frames_in)" -ge 2000
+expect "answers sent" "$(stat_value answers_sent)" -ge 2000
+expect "no deadline miss while coupling" "$(stat_value misses)" = 0
+
+# Hostile frames: rejected, counted, the loop keeps running.
+r0=$(stat_value frames_rejected); c0=$(stat_value cycles)
+check "1000 random frames of valid lengths" hapdev send garbage 1000
+check "a frame with a bad CRC" hapdev send badcrc
+check_not "a short frame is refused by the device" hapdev send short
+sleep 0.2
+r1=$(stat_value frames_rejected); c1=$(stat_value cycles)
+expect "1001 frames rejected by PROTO_IN" $((r1 - r0)) = 1001
+expect "bad CRC counted" "$(stat_value rejected.bad_crc)" -ge 1
+expect "bad length refused at the device" "$(stat_value rtf_in.bad_length)" = 1
+expect "the cycle kept running" $((c1 - c0)) -ge 150
+expect "no deadline miss under hostile input" "$(stat_value misses)" = 0
+expect "state is running" "$(stat_value state)" = running
+grep -E '^(frames_|rejected\.|answers_|vpr_|session)' /dev/hap_stats | sed 's/^/# stats /'
+check "rmmod" rmmod hapticctrl
+finish
