@@ -205,6 +205,7 @@ impl kernel::Module for HapticCtrl {
             devices: None,
         };
         // On error `this` drops: tasks stopped, devices removed, channels freed.
+        servo::calibrate(&shared);
         this.devices = Some(Devices::register()?);
         this.tasks = Some(Tasks::start(&shared)?);
         pr_info!(

@@ -44,6 +44,17 @@ pub(crate) fn servo_main(sh: &Shared) {
     }
 }
 
+/// The initial calibration (spec §3.2), at insmod before the tasks start:
+/// one servo cycle with the arm at rest and no client. It takes every lock
+/// of the cycle once, so first-use costs (lockdep registering its classes on
+/// the debug kernel: milliseconds) are not paid inside the first real-time
+/// cycle. Its inputs are those of every cycle before a client or a user acts,
+/// so the host replay starts from the same state.
+pub(crate) fn calibrate(sh: &Shared) {
+    let mut data = sh.data.lock();
+    servo_cycle(sh, &mut data);
+}
+
 fn servo_cycle(sh: &Shared, data: &mut ServoData) {
     // Fail-safe lines cut by CLOCK while SERVO was busy.
     if sh.inhibit_motors.load(Acquire) {

@@ -11,13 +11,14 @@
 #   --log FILE          keep the guest log there (default build/logs/<test>.log)
 #   --extra SRC:DST     add a file to the initramfs (repeatable)
 #   --accel tcg|kvm     force the accelerator (default: KVM if a probe boot works)
+#   --period-us N       the servo period the in-guest tests use (hap.period_us=N)
 #   --background        start the guest and return; prints "PID LOG" (for host-side tests)
 # ARGs are passed to the test script (comma-free words).
 set -euo pipefail
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 
-variant=""; icount=0; smp=2; timeout_s=120; udp=""; log=""; accel=${HAP_ACCEL:-}; background=0
+variant=""; period_us=""; icount=0; smp=2; timeout_s=120; udp=""; log=""; accel=${HAP_ACCEL:-}; background=0
 extras=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -30,7 +31,8 @@ while [ $# -gt 0 ]; do
     --extra) extras+=("$2"); shift ;;
     --accel) accel=$2; shift ;;
     --background) background=1 ;;
-    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
+    --period-us) period_us=$2; shift ;;
+    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
     --) shift; break ;;
     -*) die "unknown option $1 (see --help)" ;;
     *) break ;;
@@ -88,6 +90,7 @@ if [ -n "$udp" ]; then
 fi
 append="console=ttyS0 panic=-1 rdinit=/init loglevel=6 tsc=reliable hap.mode=$mode${HAP_APPEND:+ $HAP_APPEND}"
 [ -n "$args" ] && append="$append hap.args=$args"
+[ -n "$period_us" ] && append="$append hap.period_us=$period_us"
 qemu+=(-append "$append" ${HAP_QEMU_EXTRA:-})
 log "booting $name (${variant:-base} kernel, accel=$mode${udp:+, udp $udp}); log: $log"
 

@@ -4,9 +4,9 @@
 # inhibit motor commands, power off the arm, close the protocol, stop the
 # tasks; then the module unloads cleanly. Also: rmmod while a reader blocks.
 . /tests/lib.sh
-check "insmod" insmod $HAP_KO
+check "insmod" insmod $HAP_KO period_us=$HAP_PERIOD_US
 check "power on" sh -c 'echo 1 > /dev/hap_power'
-sleep 0.2
+sleep_cycles 50
 expect "powered" "$(stat_value power)" = 1
 
 # A reader blocked on rtf_out (no session: nothing to read).
@@ -18,7 +18,7 @@ check_not "rmmod while a reader holds rtf_out fails at once (no hang)" rmmod hap
 check "the module is still there" sh -c 'grep -q ^hapticctrl /proc/modules'
 
 check "stop request" sh -c 'echo stop > /dev/hap_stop'
-sleep 0.2
+sleep_cycles 50
 expect "state is fail_safe" "$(stat_value state)" = fail_safe
 check "dmesg: fail-safe caused by the stop request" dmesg_has 'fail-safe \(stop_requested\): start'
 # The five steps, in hap-core's order.
@@ -30,7 +30,7 @@ expect "motors inhibited" "$(stat_value motors_inhibited)" = 1
 expect "arm powered off" "$(stat_value power)" = 0
 sleep 0.3
 check_not "the blocked reader saw end of file and exited" kill -0 $reader
-c0=$(stat_value timer_ticks); sleep 0.2; c1=$(stat_value timer_ticks)
+c0=$(stat_value timer_ticks); sleep_cycles 50; c1=$(stat_value timer_ticks)
 expect "the cycle is stopped" "$c1" = "$c0"
 check_not "a power-on request after the fail-safe does not re-enable motors" sh -c 'echo 1 > /dev/hap_power; sleep 0.1; grep -q "^motors_enabled: 1" /dev/hap_stats'
 check "rmmod after the fail-safe" rmmod hapticctrl

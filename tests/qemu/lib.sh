@@ -6,6 +6,13 @@ HT_FAIL=0
 HT_N=0
 HAP_KO=/lib/modules/hapticctrl.ko
 HAP_MODE=$(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' /proc/cmdline)
+# The servo period the suite runs at (qemu-run.sh --period-us; 1000 by default).
+HAP_PERIOD_US=$(sed -n 's/.*hap\.period_us=\([0-9]*\).*/\1/p' /proc/cmdline)
+HAP_PERIOD_US=${HAP_PERIOD_US:-1000}
+# cycles_in MS: servo cycles in MS milliseconds at the suite's period.
+cycles_in() { echo $(( $1 * 1000 / HAP_PERIOD_US )); }
+# sleep_cycles N: sleep for N servo periods.
+sleep_cycles() { usleep $(( $1 * HAP_PERIOD_US )); }
 
 pass() { HT_N=$((HT_N + 1)); HT_PASS=$((HT_PASS + 1)); echo "ok $HT_N - $*"; }
 fail() { HT_N=$((HT_N + 1)); HT_FAIL=$((HT_FAIL + 1)); echo "not ok $HT_N - $*"; }
