@@ -5,6 +5,8 @@
 # Options:
 #   --debug             use the debug kernel variant (lockdep, atomic-sleep checks)
 #   --icount            deterministic guest time: -icount shift=0,align=off,sleep=off -smp 1
+#   --icount-sleep      link-friendly guest time: -icount shift=0,align=off,sleep=on -smp 1
+#                       (busy time counted in instructions, idle time follows the host clock)
 #   --smp N             vCPUs (default 2; forced to 1 with --icount)
 #   --timeout S         kill the guest after S seconds (default 120): a hang fails
 #   --udp HOST:GUEST    forward UDP 127.0.0.1:HOST to the guest's port GUEST
@@ -24,6 +26,7 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --debug) variant=debug ;;
     --icount) icount=1 ;;
+    --icount-sleep) icount=2 ;;
     --smp) smp=$2; shift ;;
     --timeout) timeout_s=$2; shift ;;
     --udp) udp=$2; shift ;;
@@ -32,7 +35,7 @@ while [ $# -gt 0 ]; do
     --accel) accel=$2; shift ;;
     --background) background=1 ;;
     --period-us) period_us=$2; shift ;;
-    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
     --) shift; break ;;
     -*) die "unknown option $1 (see --help)" ;;
     *) break ;;
@@ -82,6 +85,8 @@ if [ "$accel" = kvm ]; then
   qemu+=(-enable-kvm -cpu host -smp "$smp")
 elif [ "$icount" = 1 ]; then
   qemu+=(-accel tcg -icount shift=0,align=off,sleep=off -smp 1); mode="tcg-icount"
+elif [ "$icount" = 2 ]; then
+  qemu+=(-accel tcg -icount shift=${HAP_ICOUNT_SHIFT:-0},align=off,sleep=on -smp 1); mode="tcg-icount-sleep"
 else
   qemu+=(-accel tcg,thread=multi -smp "$smp")
 fi

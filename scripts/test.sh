@@ -2,18 +2,19 @@
 # Run all of hapticctrl's tests: set-up (idempotent), host tests (cargo test,
 # fmt, clippy), the module build with its symbol check, and the QEMU suite.
 # Prints "N passed, N failed" per part and a total at the end.
-#   scripts/test.sh [--host-only | --qemu-only] [--debug-kernel]
+#   scripts/test.sh [--host-only | --qemu-only] [--no-debug-kernel] [--no-e2e]
 set -uo pipefail
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 cd "$HAP_ROOT"
 
-host=1; qemu=1; debug=0
+host=1; qemu=1; debug=1; e2e=1
 for a in "$@"; do
   case "$a" in
     --host-only) qemu=0 ;;
     --qemu-only) host=0 ;;
-    --debug-kernel) debug=1 ;;
+    --no-debug-kernel) debug=0 ;;
+    --no-e2e) e2e=0 ;;
     -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
     *) die "unknown argument '$a' (try --help)" ;;
   esac
@@ -21,7 +22,8 @@ done
 
 t_start=$(date +%s)
 total_pass=0; total_fail=0; parts=()
-add() { total_pass=$((total_pass + $2)); total_fail=$((total_fail + $3)); parts+=("$1: $2 passed, $3 failed"); }
+# add PART PASSED FAILED (a part that printed no counts counts as one failure)
+add() { local p=${2:-0} f=${3:-}; [ -n "$f" ] || f=1; total_pass=$((total_pass + p)); total_fail=$((total_fail + f)); parts+=("$1: $p passed, $f failed"); }
 
 bash "$HERE/setup-toolchain.sh" || die "toolchain set-up failed"
 
@@ -48,9 +50,8 @@ if [ "$qemu" = 1 ]; then
   build_p=0; build_f=0
   log "building the test kernel (cached) and the module"
   if make -s; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: module build or symbol check"; fi
-  if [ -x "$HERE/build-userspace-static.sh" ]; then
-    if bash "$HERE/build-userspace-static.sh"; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: static userspace build"; fi
-  fi
+  if bash "$HERE/build-userspace-static.sh"; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: static userspace build"; fi
+  if (cd userspace && cargo build --release --quiet -p virtuose_demo -p hapctl); then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: host release build"; fi
   add "build" "$build_p" "$build_f"
   if [ "$build_f" = 0 ]; then
     out=$(mktemp)
@@ -58,6 +59,13 @@ if [ "$qemu" = 1 ]; then
     line=$(grep -E '^qemu: [0-9]+ passed' "$out" | tail -1)
     add "qemu suite" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
     rm -f "$out"
+    if [ "$e2e" = 1 ]; then
+      out=$(mktemp)
+      bash tests/e2e/link.sh | tee "$out"
+      line=$(grep -E '^e2e: [0-9]+ passed' "$out" | tail -1)
+      add "host<->guest e2e" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+      rm -f "$out"
+    fi
     if [ "$debug" = 1 ]; then
       if make -s DEBUG=1; then
         out=$(mktemp)

@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# The main job, from a fresh Debian 12 machine: set everything up, boot the
+# QEMU guest with the controller (launch script: proto_interface + module)
+# and a scripted user walking the handle around, run the test client on the
+# host against the forwarded UDP port (3D page + terminal summary), then
+# leave the figures and plots of the run in a results folder.
+#   scripts/demo.sh [--duration S] [--headless] [--http ADDR] [--results DIR] [--period-us N]
+set -euo pipefail
+HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+. "$HERE/lib.sh"
+
+duration=30; headless=0; http=127.0.0.1:8080; results="$HAP_ROOT/results/demo-$(date +%Y%m%d-%H%M%S)"; period_us=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --duration) duration=$2; shift ;;
+    --headless) headless=1 ;;
+    --http) http=$2; shift ;;
+    --results) results=$2; shift ;;
+    --period-us) period_us=$2; shift ;;
+    -h|--help) sed -n '2,7p' "$0"; exit 0 ;;
+    *) die "unknown argument '$1' (try --help)" ;;
+  esac
+  shift
+done
+case "$duration" in ''|*[!0-9]*) die "--duration takes whole seconds" ;; esac
+
+bash "$HERE/setup-toolchain.sh"
+bash "$HERE/build-kernel.sh" >/dev/null
+make -s -C "$HAP_ROOT"
+bash "$HERE/build-userspace-static.sh"
+log "building the host tools (virtuose_demo, hapctl)"
+(cd "$HAP_ROOT/userspace" && cargo build --release --quiet -p virtuose_demo -p hapctl)
+mkdir -p "$results"
+
+# KVM where it works (real time, 1 ms period); otherwise TCG with icount
+# sleep=on, where a 1 ms servo keeps up (timing.md) at a fraction of real time.
+accel_opts=(--icount-sleep); period_us=${period_us:-1000}
+if [ "${HAP_ACCEL:-}" = kvm ]; then accel_opts=(--accel kvm); fi
+port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+read -r qpid qlog < <(bash "$HERE/qemu-run.sh" --background "${accel_opts[@]}" --udp "$port:5000" \
+  --log "$results/guest.log" --extra "$HAP_ROOT/tests/data/walk.eff:/data/effort.eff" \
+  "$HAP_ROOT/tests/guest/serve.sh" "$period_us" $((duration + 120)))
+trap 'kill $qpid 2>/dev/null || true' EXIT
+for _ in $(seq 900); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
+grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; die "the guest did not start (log: $qlog)"; }
+mode=$(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' "$qlog" | head -1)
+log "guest up (accelerator: $mode, servo period ${period_us} us); controller at 127.0.0.1:$port"
+
+client=("$HAP_ROOT/userspace/target/release/virtuose_demo" --server "127.0.0.1#$port" --duration "$duration" --results "$results")
+if [ "$headless" = 1 ]; then client+=(--headless); else client+=(--http "$http"); log "3D page: http://$http/ (the client prints it too)"; fi
+"${client[@]}" | tee "$results/client.txt"
+
+for _ in $(seq 1800); do kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
+trap - EXIT
+between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | grep -v -- "$1-"; }
+between HAP-STATS > "$results/hap_stats.txt"
+between HAP-PROTO > "$results/proto_interface.txt"
+between HAP-SIMLOG | base64 -d > "$results/simlog.bin" 2>/dev/null || true
+if [ -s "$results/simlog.bin" ]; then
+  "$HAP_ROOT/userspace/target/release/hapctl" analyze "$results/simlog.bin" --stats "$results/hap_stats.txt" --out "$results/plots" || true
+fi
+echo
+echo "=== demo finished (accelerator: $mode; under TCG timing figures are emulation artefacts)"
+grep -E '^(sample_rate_hz|loss_ratio|rtt_ms_mean|coupling_error_mean_m|handle_travel_m|coupled_travel_m):' "$results/summary.txt" 2>/dev/null | sed 's/^/  client  /'
+grep -E '^(cycles|misses|max_consecutive_misses|wakeup.p99_us|exec.p99_us|frames_in|answers_sent|state):' "$results/hap_stats.txt" | sed 's/^/  module  /'
+echo "results: $results (run.csv, summary.txt, hap_stats.txt, proto_interface.txt, simlog.bin, plots/)"

@@ -1,0 +1,81 @@
+#!/usr/bin/env bash
+# Host <-> guest end-to-end (plain TCG: the guest clock follows the host's,
+# which a UDP link needs). The test client (virtuose_demo, headless) on the
+# host couples to the simulated arm in the guest through proto_interface for
+# DURATION seconds at 1 kHz; meanwhile a second client from another source
+# port must be refused and 10^4 hostile datagrams must be counted and change
+# nothing. Prints every figure, then "N passed, N failed".
+#   tests/e2e/link.sh [--duration S] [--period-us N] [--results DIR]
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+. "$ROOT/scripts/lib.sh"
+duration=12; period_us=2000; results="$ROOT/build/e2e"
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --duration) duration=$2; shift ;;
+    --period-us) period_us=$2; shift ;;
+    --results) results=$2; shift ;;
+    *) die "unknown argument $1" ;;
+  esac
+  shift
+done
+mkdir -p "$results"; rm -f "$results"/*
+pass=0; fail=0
+ok() { pass=$((pass + 1)); echo "ok - $*"; }
+nok() { fail=$((fail + 1)); echo "not ok - $*"; }
+check_num() { # desc value op limit
+  if awk -v v="$2" -v l="$4" "BEGIN { exit !(v $3 l) }"; then ok "$1 ($2 $3 $4)"; else nok "$1 (got '$2', want $3 $4)"; fi
+}
+demo="$ROOT/userspace/target/release/virtuose_demo"
+[ -x "$demo" ] || (cd "$ROOT/userspace" && cargo build --release --quiet -p virtuose_demo) || die "cannot build virtuose_demo"
+
+port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background ${HAP_E2E_QEMU:---icount-sleep} --udp "$port:5000" \
+  --log "$results/guest.log" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" \
+  "$ROOT/tests/guest/serve.sh" "$period_us" $((duration + 60)))
+trap 'kill $qpid 2>/dev/null' EXIT
+for _ in $(seq 600); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
+grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; die "the guest did not get ready"; }
+echo "# guest ready (plain TCG, servo period ${period_us} us); UDP 127.0.0.1:$port -> guest:5000"
+
+if [ "${HAP_E2E_NO_HOSTILE:-0}" = 1 ]; then true & else
+python3 "$ROOT/tests/e2e/udp_garbage.py" 127.0.0.1 "$port" 10000 3 > "$results/garbage.txt" 2>&1 &
+fi
+gpid=$!
+( sleep 4; timeout 30 "$demo" --server "127.0.0.1#$port" --headless --duration 2 --timeout-ms 300 > "$results/second_client.txt" 2>&1; echo $? > "$results/second_client.rc" ) &
+spid=$!
+"$demo" --server "127.0.0.1#$port" --headless --duration "$duration" --results "$results" > "$results/client.txt" 2>&1
+crc=$?
+wait "$gpid" "$spid"
+for _ in $(seq 1200); do kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
+kill "$qpid" 2>/dev/null
+trap - EXIT
+
+sed 's/^/# client: /' "$results/client.txt" | grep -E 'summary|sample_rate|loss|rtt|coupling|travel|answers|lost|error' | head -20
+sed 's/^/# /' "$results/garbage.txt"
+sv() { sed -n "s/^$1: //p" "$results/summary.txt" 2>/dev/null | head -1; }
+between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | grep -v -- "$1-"; }
+between HAP-STATS > "$results/hap_stats.txt"
+between HAP-PROTO > "$results/proto_interface.txt"
+between HAP-SIMLOG | base64 -d > "$results/simlog.bin" 2>/dev/null
+gv() { sed -n "s/^$2: *\([^ ]*\).*/\1/p" "$results/$1" | head -1; }
+
+[ "$crc" = 0 ] && ok "the test client ran ${duration} s against the guest" || nok "the test client failed (exit $crc): $(tail -3 "$results/client.txt")"
+check_num "sample rate, Hz (spec: >= 333, 1 per 3 ms)" "$(sv sample_rate_hz)" '>=' 333
+check_num "loss ratio (spec: < 0.1)" "$(sv loss_ratio)" '<' 0.1
+check_num "the user moved the handle (m)" "$(sv handle_travel_m)" '>=' 0.02
+check_num "the coupled sphere followed (m)" "$(sv coupled_travel_m)" '>=' 0.02
+check_num "coupling error, mean (m)" "$(sv coupling_error_mean_m)" '<=' 0.005
+[ "$(cat "$results/second_client.rc" 2>/dev/null)" != 0 ] && ok "a second client from another source port is refused" || nok "the second client was not refused: $(tail -2 "$results/second_client.txt")"
+check_num "module: exactly one session opened" "$(gv hap_stats.txt sessions_opened)" '==' 1
+check_num "bridge: hostile datagrams dropped" "$(gv proto_interface.txt rejected)" '>=' 10000
+check_num "bridge: second client's datagrams dropped as stray" "$(gv proto_interface.txt rejected_stray_source)" '>=' 1
+check_num "module: nothing malformed reached it" "$(gv hap_stats.txt frames_rejected)" '==' 0
+check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
+echo "# module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses) (plain TCG: emulation noise), max consecutive $(gv hap_stats.txt max_consecutive_misses), answers sent $(gv hap_stats.txt answers_sent)"
+check_num "simulator log captured (records)" "$(( $(stat -c %s "$results/simlog.bin" 2>/dev/null || echo 0) / 288 ))" '>=' 100
+problems=$(grep -E 'Kernel panic|Oops|WARNING:|BUG:|Call Trace|possible (circular|recursive) locking|sleeping function called' "$qlog" || true)
+[ -z "$problems" ] && ok "no kernel warning in the guest log" || nok "kernel problems: $problems"
+grep -q 'HAPTEST-RESULT rc=0' "$qlog" && ok "guest side passed (launch script start/stop)" || nok "guest side failed: $(grep -E 'not ok|HAPTEST-RESULT' "$qlog" | head -5)"
+echo "e2e: $pass passed, $fail failed"
+[ "$fail" = 0 ]
