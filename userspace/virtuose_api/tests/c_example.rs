@@ -13,9 +13,12 @@ fn staticlib() -> Option<PathBuf> {
     // member's dependency and not uplifted).
     let deps = exe.parent()?;
     let dir = deps.parent()?;
-    [dir.join("libvirtuose_api.a"), deps.join("libvirtuose_api.a")]
-        .into_iter()
-        .find(|p| p.exists())
+    [
+        dir.join("libvirtuose_api.a"),
+        deps.join("libvirtuose_api.a"),
+    ]
+    .into_iter()
+    .find(|p| p.exists())
 }
 
 #[test]

@@ -81,8 +81,22 @@ fn a3(v: &V3) -> [f64; 3] {
 
 fn init(vc: &mut VirtContext, dt: f32, mass: f32) -> Result<(), virtuose_api::VirtError> {
     let identity = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
-    println!("init: references (base frame, observation frame = identity)");
-    vc.set_base_frame(&identity)?;
+    // References: the scene's origin is where the handle rests when the
+    // client connects (the arm's base may be anywhere in the room). Only a
+    // translation: the scene's "down" stays the arm's "down".
+    let t_wait = Instant::now();
+    while vc.get_position().is_err() && t_wait.elapsed() < Duration::from_secs(2) {
+        vc.wait_answer(Duration::from_millis(5));
+    }
+    let base = match vc.get_position() {
+        Ok(h) => [-h[0], -h[1], -h[2], 0.0, 0.0, 0.0, 1.0],
+        Err(_) => identity,
+    };
+    println!(
+        "init: references (base frame: translation {:.3},{:.3},{:.3} puts the resting handle at the scene origin; observation frame = identity)",
+        base[0], base[1], base[2]
+    );
+    vc.set_base_frame(&base)?;
     vc.set_observation_frame(&identity)?;
     println!("init: units (force factor 1, speed factor 1: SI units both sides)");
     vc.set_force_factor(1.0)?;
@@ -186,6 +200,10 @@ fn run(args: Args) -> Result<(), String> {
     let period = Duration::from_secs_f64(dt);
     let mut next = t0 + period;
     let mut handle = V3::from(world.a.pos);
+    let mut handle_q: [f32; 4] = match vc.get_position() {
+        Ok(h) => [h[3], h[4], h[5], h[6]],
+        Err(_) => [0.0, 0.0, 0.0, 1.0],
+    };
     let (mut loops, mut loop_t, mut loop_hz) = (0u64, Instant::now(), 0.0);
     let (mut last_print, mut last_hist, mut last_csv) = (0.0f64, 0.0f64, -1.0f64);
     let (mut err_sum, mut err_n, mut err_max) = (0.0f64, 0u64, 0.0f64);
@@ -201,6 +219,7 @@ fn run(args: Args) -> Result<(), String> {
         }
         if let (Ok(h), Ok(f)) = (vc.get_position(), vc.get_force()) {
             handle = V3::new(h[0] as f64, h[1] as f64, h[2] as f64);
+            handle_q = [h[3], h[4], h[5], h[6]];
             force = V3::new(f[0] as f64, f[1] as f64, f[2] as f64);
         }
         let power = vc.get_power_on().unwrap_or(false);
@@ -215,14 +234,16 @@ fn run(args: Args) -> Result<(), String> {
             0.0,
         ];
         let _ = vc.set_speed(&sp);
+        // A sphere has no orientation to couple: it takes the handle's, so
+        // the coupling is a pure translation.
         let _ = vc.set_position(&[
             a.pos.x as f32,
             a.pos.y as f32,
             a.pos.z as f32,
-            0.0,
-            0.0,
-            0.0,
-            1.0,
+            handle_q[0],
+            handle_q[1],
+            handle_q[2],
+            handle_q[3],
         ]);
 
         // bookkeeping
