@@ -49,6 +49,7 @@ fi
 if [ "$qemu" = 1 ]; then
   build_p=0; build_f=0
   log "building the test kernel (cached) and the module"
+  bash "$HERE/build-kernel.sh" >/dev/null || { echo "FAIL: kernel build"; build_f=$((build_f + 1)); }
   if make -s; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: module build or symbol check"; fi
   if bash "$HERE/build-userspace-static.sh"; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: static userspace build"; fi
   if (cd userspace && cargo build --release --quiet -p virtuose_demo -p hapctl); then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: host release build"; fi
@@ -67,7 +68,7 @@ if [ "$qemu" = 1 ]; then
       rm -f "$out"
     fi
     if [ "$debug" = 1 ]; then
-      if make -s DEBUG=1; then
+      if bash "$HERE/build-kernel.sh" --debug >/dev/null && make -s DEBUG=1; then
         out=$(mktemp)
         bash tests/run-qemu-suite.sh --debug | tee "$out"
         line=$(grep -E '^qemu: [0-9]+ passed' "$out" | tail -1)

@@ -9,7 +9,7 @@
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 . "$ROOT/scripts/lib.sh"
-duration=12; period_us=2000; results="$ROOT/build/e2e"
+duration=15; period_us=1000; results="$ROOT/build/e2e"
 while [ $# -gt 0 ]; do
   case "$1" in
     --duration) duration=$2; shift ;;
@@ -54,10 +54,10 @@ trap - EXIT
 sed 's/^/# client: /' "$results/client.txt" | grep -E 'summary|sample_rate|loss|rtt|coupling|travel|answers|lost|error' | head -20
 sed 's/^/# /' "$results/garbage.txt"
 sv() { sed -n "s/^$1: //p" "$results/summary.txt" 2>/dev/null | head -1; }
-between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | grep -v -- "$1-"; }
+between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | tr -d "\r" | grep -v -- "$1-"; }
 between HAP-STATS > "$results/hap_stats.txt"
 between HAP-PROTO > "$results/proto_interface.txt"
-between HAP-SIMLOG | base64 -d > "$results/simlog.bin" 2>/dev/null
+between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d > "$results/simlog.bin" 2>/dev/null
 gv() { sed -n "s/^$2: *\([^ ]*\).*/\1/p" "$results/$1" | head -1; }
 
 [ "$crc" = 0 ] && ok "the test client ran ${duration} s against the guest" || nok "the test client failed (exit $crc): $(tail -3 "$results/client.txt")"

@@ -317,8 +317,7 @@ pub fn cartesian_control(
     };
 
     // ---- Coupling.
-    let want_coupling = ls.mode == ServoMode::Main
-        && ls.motors_enabled
+    let want_coupling = ls.motors_enabled
         && ls.dead_man
         && vpr.valid
         && match config.command_type {
@@ -327,6 +326,13 @@ pub fn cartesian_control(
             CommandType::VirtMech => config.attached_object.is_some(),
         };
     let mut g = ctrl.gains;
+    if ls.mode == ServoMode::Degraded {
+        // The auxiliary path keeps the coupling (spec §3.5: same code) but a
+        // deadline was just missed, so the effective period may be twice as
+        // long: halving the stiffnesses keeps the b > K·T/2 margin.
+        g.k_lin = Fx(g.k_lin.0 / 2);
+        g.k_rot = Fx(g.k_rot.0 / 2);
+    }
     if config.command_type == CommandType::VirtMech {
         // Mass-aware cap so the client's explicit integration stays stable:
         // K ≤ m / ts².

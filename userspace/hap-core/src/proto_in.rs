@@ -8,10 +8,13 @@
 //! lock reads it with [`ProtoIn::vpr`].
 //!
 //! Session rules:
-//! - `OpenSession` always opens a new session (a new client, or the same one
-//!   after a restart): a fresh session id, an invalid VPr (the coupling fades
-//!   out until the first `VprStream`), the default configuration, and a
-//!   `SessionAck` echoing the client's nonce with the servo period.
+//! - `OpenSession` opens a new session (a new client, or the same one after a
+//!   restart): a fresh session id, an invalid VPr (the coupling fades out
+//!   until the first `VprStream`), the default configuration, and a
+//!   `SessionAck` echoing the client's nonce with the servo period. A copy
+//!   of the request that opened the current session (same nonce: a client
+//!   retransmitting because the ack was slow) is acknowledged again with the
+//!   same session id and changes nothing.
 //! - Every other request must carry the current session id, else it is
 //!   rejected (`NoSession`) and answered with `Error(ERROR_NO_SESSION)`.
 //! - Sequence numbers must grow (RFC 1982 order) within a session: a
@@ -112,6 +115,7 @@ impl ProtoCounters {
 #[derive(Clone, Debug)]
 pub struct ProtoIn {
     session: u16,
+    session_nonce: u32,
     last_session: u16,
     last_seq: u32,
     seq_valid: bool,
@@ -130,6 +134,7 @@ impl ProtoIn {
     pub fn new() -> Self {
         ProtoIn {
             session: 0,
+            session_nonce: 0,
             last_session: 0,
             last_seq: 0,
             seq_valid: false,
@@ -186,7 +191,19 @@ impl ProtoIn {
             return self.reject(out, Reject::NotARequest);
         }
         if let Frame::OpenSession { client_nonce } = frame {
+            if self.session != 0 && client_nonce == self.session_nonce {
+                // A retransmitted open: same session, nothing reset.
+                self.counters.accepted = self.counters.accepted.saturating_add(1);
+                self.counters.replies = self.counters.replies.saturating_add(1);
+                out.accepted = true;
+                out.reply = Some(Frame::SessionAck {
+                    client_nonce,
+                    period_us,
+                });
+                return out;
+            }
             self.close();
+            self.session_nonce = client_nonce;
             self.last_session = self.last_session.wrapping_add(1);
             if self.last_session == 0 {
                 self.last_session = 1;
@@ -303,12 +320,24 @@ mod tests {
     }
 
     fn open(p: &mut ProtoIn) -> u16 {
-        let o = handle(p, 0, 1, 0, &Frame::OpenSession { client_nonce: 42 });
+        open_with(p, 42)
+    }
+
+    fn open_with(p: &mut ProtoIn, nonce: u32) -> u16 {
+        let o = handle(
+            p,
+            0,
+            1,
+            0,
+            &Frame::OpenSession {
+                client_nonce: nonce,
+            },
+        );
         assert!(o.accepted);
         assert_eq!(
             o.reply,
             Some(Frame::SessionAck {
-                client_nonce: 42,
+                client_nonce: nonce,
                 period_us: 1000
             })
         );
@@ -409,10 +438,38 @@ mod tests {
         let o = handle(&mut p, s, 3, 0, &Frame::PowerRequest(true));
         assert_eq!(o.power, Some(true));
         assert!(o.reply.is_none());
-        // A new session resets the configuration.
-        let s2 = open(&mut p);
+        // A new session (another nonce) resets the configuration.
+        let s2 = open_with(&mut p, 7);
         assert_ne!(s2, s);
         assert_eq!(p.config().command_type, CommandType::None);
+    }
+
+    #[test]
+    fn a_retransmitted_open_keeps_the_session() {
+        let mut p = ProtoIn::new();
+        let s = open(&mut p);
+        assert!(
+            handle(
+                &mut p,
+                s,
+                2,
+                0,
+                &Frame::SetCommandType(CommandType::Impedance)
+            )
+            .config_changed
+        );
+        // The client did not see the ack in time and sends the same open again.
+        let o = handle(&mut p, 0, 1, 0, &Frame::OpenSession { client_nonce: 42 });
+        assert!(o.accepted);
+        assert_eq!(o.session_change, None);
+        assert!(!o.config_changed);
+        assert_eq!(p.session(), s);
+        assert_eq!(p.config().command_type, CommandType::Impedance);
+        assert_eq!(p.counters().sessions_opened, 1);
+        // Another nonce is another client (or a restart): a new session.
+        let o = handle(&mut p, 0, 1, 0, &Frame::OpenSession { client_nonce: 43 });
+        assert_eq!(o.session_change, Some(true));
+        assert_ne!(p.session(), s);
     }
 
     #[test]

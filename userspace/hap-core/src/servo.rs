@@ -7,8 +7,10 @@
 //! `simulate_arm` (one period) → fill VP and the `LogRecord`.
 //!
 //! `ServoMode::Main` is the normal path. `ServoMode::Degraded` is the spec's
-//! auxiliary SERVO path: cheaper and safe — no coupling to the client object,
-//! gravity compensation plus joint damping only, `status::DEGRADED` set.
+//! auxiliary SERVO path, entered after a deadline miss: the same code (spec
+//! §3.5), with the coupling stiffness halved (a missed deadline may double
+//! the effective period; halving K keeps the passivity margin b > K·T/2)
+//! and extra joint damping; `status::DEGRADED` set.
 //!
 //! Initial calibration: the simulated arm starts at rest in
 //! [`super::arm::REST_Q`] (shoulder on its stop, forearm and wrist hanging),

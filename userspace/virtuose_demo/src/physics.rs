@@ -32,6 +32,11 @@ pub struct World {
     pub gravity: f64,
     pub contact_k: f64,
     pub contact_c: f64,
+    /// Viscous drag on the coupled sphere A, N·s/m. The coupling reaches the
+    /// client late (network + answer period, ~10 ms under emulation); a
+    /// spring K delayed by T stays passive only with damping b > K·T/2
+    /// (1500 N/m × 10 ms / 2 = 7.5 N·s/m), which this drag provides.
+    pub drag_a: f64,
     /// Last contact force applied on A by B (N), for display.
     pub contact_on_a: V3,
 }
@@ -56,6 +61,7 @@ impl Default for World {
             gravity: 9.81,
             contact_k: 2000.0,
             contact_c: 10.0,
+            drag_a: 10.0,
             contact_on_a: V3::zeros(),
         }
     }
@@ -103,7 +109,7 @@ impl World {
     /// contact force on A.
     pub fn step(&mut self, dt: f64, coupling: V3) -> V3 {
         let fc = self.sphere_contact();
-        let fa = coupling
+        let fa = coupling - self.a.vel * self.drag_a
             + fc
             + box_force(
                 &self.a,
