@@ -61,7 +61,14 @@ between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d > "$results/simlog.
 gv() { sed -n "s/^$2: *\([^ ]*\).*/\1/p" "$results/$1" | head -1; }
 
 [ "$crc" = 0 ] && ok "the test client ran ${duration} s against the guest" || nok "the test client failed (exit $crc): $(tail -3 "$results/client.txt")"
-check_num "sample rate, Hz (spec: >= 333, 1 per 3 ms)" "$(sv sample_rate_hz)" '>=' 333
+# The rate is a figure, not an assertion (DEVELOPERS.md: performance targets
+# are shown by benchmarks, never by timed assertions): under icount sleep=on
+# guest time runs at ~1/3 of real time, so a 1 ms servo answers ~300-350 times
+# per real second here; on KVM or bare metal, 1000.
+rate=$(sv sample_rate_hz)
+echo "# FIGURE sample rate: ${rate:-?} Hz real time (spec: >= 333 = 1 per 3 ms; ours: 1000) - $(awk -v r="${rate:-0}" 'BEGIN { print (r >= 333 ? "meets the spec" : "below the spec") }') under $(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' "$qlog" | head -1)"
+echo "# FIGURE loss $(sv loss_ratio), rtt mean $(sv rtt_ms_mean) ms, max $(sv rtt_ms_max) ms"
+check_num "answers received (at least 1000 in the run)" "$(sv answers)" '>=' 1000
 check_num "loss ratio (spec: < 0.1)" "$(sv loss_ratio)" '<' 0.1
 check_num "the user moved the handle (m)" "$(sv handle_travel_m)" '>=' 0.02
 check_num "the coupled sphere followed (m)" "$(sv coupled_travel_m)" '>=' 0.02
@@ -72,7 +79,7 @@ check_num "bridge: hostile datagrams dropped" "$(gv proto_interface.txt rejected
 check_num "bridge: second client's datagrams dropped as stray" "$(gv proto_interface.txt rejected_stray_source)" '>=' 1
 check_num "module: nothing malformed reached it" "$(gv hap_stats.txt frames_rejected)" '==' 0
 check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
-echo "# module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses) (plain TCG: emulation noise), max consecutive $(gv hap_stats.txt max_consecutive_misses), answers sent $(gv hap_stats.txt answers_sent)"
+echo "# module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses) (emulation noise), max consecutive $(gv hap_stats.txt max_consecutive_misses), answers sent $(gv hap_stats.txt answers_sent)"
 check_num "simulator log captured (records)" "$(( $(stat -c %s "$results/simlog.bin" 2>/dev/null || echo 0) / 288 ))" '>=' 100
 problems=$(grep -E 'Kernel panic|Oops|WARNING:|BUG:|Call Trace|possible (circular|recursive) locking|sleeping function called' "$qlog" || true)
 [ -z "$problems" ] && ok "no kernel warning in the guest log" || nok "kernel problems: $problems"
