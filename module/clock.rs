@@ -18,7 +18,7 @@ use crate::{
     hap_core::clock::{
         FailSafeAction, FailSafeCause, Mode, Supervisor, Verdict, FAIL_SAFE_SEQUENCE,
     },
-    shared::{self, state, Shared},
+    shared::{state, DeviceFile, Shared},
 };
 use kernel::{
     fs::{File, Kiocb},
@@ -262,17 +262,17 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
 
 /// `/dev/hap_stop`: any write requests the application's termination.
 pub(crate) struct StopDevice {
-    shared: Arc<Shared>,
+    f: DeviceFile,
 }
 
 #[vtable]
 impl MiscDevice for StopDevice {
     type Ptr = KBox<Self>;
 
-    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
         Ok(KBox::new(
             StopDevice {
-                shared: shared::get()?,
+                f: DeviceFile::open(file)?,
             },
             GFP_KERNEL,
         )?)
@@ -281,7 +281,7 @@ impl MiscDevice for StopDevice {
     fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
         let n = iov.len();
         iov.advance(n);
-        kiocb.file().shared.stop_request.store(true, Release);
+        kiocb.file().f.shared.stop_request.store(true, Release);
         Ok(n)
     }
 }

@@ -4,17 +4,17 @@
 //! SERVO overrun its deadline (stay busy past CLOCK's 3/4 check) for the next
 //! N cycles (0 < N <= 1000). Anything else is `EINVAL`.
 
-use crate::shared::{self, Shared};
+use crate::shared::DeviceFile;
 use kernel::{
     fs::{File, Kiocb},
     iov::IovIterSource,
     miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
-    sync::{atomic::Release, Arc},
+    sync::atomic::Release,
 };
 
 pub(crate) struct FaultDevice {
-    shared: Arc<Shared>,
+    f: DeviceFile,
 }
 
 fn parse_overrun(b: &[u8]) -> Option<u32> {
@@ -37,10 +37,10 @@ fn parse_overrun(b: &[u8]) -> Option<u32> {
 impl MiscDevice for FaultDevice {
     type Ptr = KBox<Self>;
 
-    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
         Ok(KBox::new(
             FaultDevice {
-                shared: shared::get()?,
+                f: DeviceFile::open(file)?,
             },
             GFP_KERNEL,
         )?)
@@ -54,7 +54,7 @@ impl MiscDevice for FaultDevice {
         }
         let n = iov.copy_from_iter(&mut buf[..len]);
         let count = parse_overrun(buf.get(..n).unwrap_or(&[])).ok_or(EINVAL)?;
-        kiocb.file().shared.fault_overruns.store(count, Release);
+        kiocb.file().f.shared.fault_overruns.store(count, Release);
         pr_info!(
             "fault injection: SERVO overruns the next {} cycles\n",
             count

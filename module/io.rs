@@ -11,7 +11,7 @@
 
 use crate::{
     hap_core::vp::status,
-    shared::{self, Shared},
+    shared::{DeviceFile, Shared},
 };
 use core::fmt::Write;
 use kernel::{
@@ -19,10 +19,7 @@ use kernel::{
     iov::{IovIterDest, IovIterSource},
     miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
-    sync::{
-        atomic::{Acquire, Release},
-        Arc,
-    },
+    sync::atomic::{Acquire, Release},
 };
 
 /// The arm's status bits as the hardware lines show them: SERVO's last
@@ -39,17 +36,17 @@ pub(crate) fn arm_status(sh: &Shared) -> u32 {
 }
 
 pub(crate) struct PowerDevice {
-    shared: Arc<Shared>,
+    f: DeviceFile,
 }
 
 #[vtable]
 impl MiscDevice for PowerDevice {
     type Ptr = KBox<Self>;
 
-    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
         Ok(KBox::new(
             PowerDevice {
-                shared: shared::get()?,
+                f: DeviceFile::open(file)?,
             },
             GFP_KERNEL,
         )?)
@@ -67,12 +64,12 @@ impl MiscDevice for PowerDevice {
             Some(b"0") | Some(b"0\n") => 2,
             _ => return Err(EINVAL),
         };
-        kiocb.file().shared.power_request.store(req, Release);
+        kiocb.file().f.shared.power_request.store(req, Release);
         Ok(n)
     }
 
     fn read_iter(mut kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
-        let sh = &kiocb.file().shared;
+        let sh = &kiocb.file().f.shared;
         let st = arm_status(sh);
         let mut text = crate::stats::TextBuf::<64>::new();
         let _ = writeln!(

@@ -12,7 +12,7 @@
 //!   once the protocol is closed. SERVO never blocks on a reader: a full FIFO
 //!   drops its oldest frame (counted).
 
-use crate::{hap_core::protocol, shared};
+use crate::{hap_core::protocol, shared::DeviceFile};
 use kernel::{
     fs::{File, Kiocb},
     iov::{IovIterDest, IovIterSource},
@@ -21,7 +21,7 @@ use kernel::{
     prelude::*,
     sync::{
         atomic::{Atomic, Relaxed},
-        Arc, CondVar, Mutex,
+        CondVar, Mutex,
     },
 };
 
@@ -144,24 +144,24 @@ impl RtfInCounters {
 
 /// `/dev/hap_rtf_in`.
 pub(crate) struct RtfInDevice {
-    shared: Arc<shared::Shared>,
+    f: DeviceFile,
 }
 
 #[vtable]
 impl MiscDevice for RtfInDevice {
     type Ptr = KBox<Self>;
 
-    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
         Ok(KBox::new(
             RtfInDevice {
-                shared: shared::get()?,
+                f: DeviceFile::open(file)?,
             },
             GFP_KERNEL,
         )?)
     }
 
     fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
-        let sh = &kiocb.file().shared;
+        let sh = &kiocb.file().f.shared;
         let len = iov.len();
         let mut frame = [0u8; MAX_FRAME_LEN];
         if len < protocol::MIN_FRAME_LEN || len > MAX_FRAME_LEN {
@@ -195,8 +195,7 @@ impl MiscDevice for RtfInDevice {
 
 /// `/dev/hap_rtf_out`.
 pub(crate) struct RtfOutDevice {
-    shared: Arc<shared::Shared>,
-    nonblock: bool,
+    f: DeviceFile,
 }
 
 #[vtable]
@@ -204,11 +203,9 @@ impl MiscDevice for RtfOutDevice {
     type Ptr = KBox<Self>;
 
     fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
-        let nonblock = file.flags() & kernel::fs::file::flags::O_NONBLOCK != 0;
         Ok(KBox::new(
             RtfOutDevice {
-                shared: shared::get()?,
-                nonblock,
+                f: DeviceFile::open(file)?,
             },
             GFP_KERNEL,
         )?)
@@ -220,7 +217,7 @@ impl MiscDevice for RtfOutDevice {
             return Err(EINVAL);
         }
         let mut frame = [0u8; MAX_FRAME_LEN];
-        let n = me.shared.rtf_out.pop_wait(&mut frame, me.nonblock)?;
+        let n = me.f.shared.rtf_out.pop_wait(&mut frame, me.f.nonblock)?;
         Ok(iov.copy_to_iter(&frame[..n]))
     }
 }

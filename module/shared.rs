@@ -241,3 +241,20 @@ pub(crate) fn publish(shared: Option<Arc<Shared>>) {
 pub(crate) fn get() -> Result<Arc<Shared>> {
     SHARED.lock().as_ref().cloned().ok_or(ENODEV)
 }
+
+/// What every open file of the controller's devices holds: the running
+/// controller (open fails with `ENODEV` once it is gone) and whether the
+/// file was opened `O_NONBLOCK` (7.3's `Kiocb` does not expose the flags).
+pub(crate) struct DeviceFile {
+    pub(crate) shared: Arc<Shared>,
+    pub(crate) nonblock: bool,
+}
+
+impl DeviceFile {
+    pub(crate) fn open(file: &kernel::fs::File) -> Result<Self> {
+        Ok(DeviceFile {
+            shared: get()?,
+            nonblock: file.flags() & kernel::fs::file::flags::O_NONBLOCK != 0,
+        })
+    }
+}

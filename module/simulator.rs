@@ -18,24 +18,21 @@ use crate::{
         fixed::{Fx, Vec3, Wrench},
         simulator::LogRecord,
     },
-    shared::{self, Shared},
+    shared::DeviceFile,
 };
 use kernel::{
     fs::{File, Kiocb},
     iov::{IovIterDest, IovIterSource},
     miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
-    sync::{
-        atomic::{Relaxed, Release},
-        Arc,
-    },
+    sync::atomic::{Relaxed, Release},
 };
 
 /// Largest effort-sequence write.
 const EFFORT_MAX_BYTES: usize = 64 * 1024;
 
 pub(crate) struct EffortDevice {
-    shared: Arc<Shared>,
+    f: DeviceFile,
 }
 
 /// `live fx fy fz tx ty tz`: the six values in thousandths, or `None`.
@@ -61,17 +58,17 @@ fn milli(m: i32) -> Fx {
 impl MiscDevice for EffortDevice {
     type Ptr = KBox<Self>;
 
-    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
         Ok(KBox::new(
             EffortDevice {
-                shared: shared::get()?,
+                f: DeviceFile::open(file)?,
             },
             GFP_KERNEL,
         )?)
     }
 
     fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
-        let sh = &kiocb.file().shared;
+        let sh = &kiocb.file().f.shared;
         let len = iov.len();
         if len == 0 || len > EFFORT_MAX_BYTES {
             return Err(EINVAL);
@@ -135,8 +132,7 @@ impl MiscDevice for EffortDevice {
 }
 
 pub(crate) struct SimLogDevice {
-    shared: Arc<Shared>,
-    nonblock: bool,
+    f: DeviceFile,
 }
 
 #[vtable]
@@ -144,11 +140,9 @@ impl MiscDevice for SimLogDevice {
     type Ptr = KBox<Self>;
 
     fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
-        let nonblock = file.flags() & kernel::fs::file::flags::O_NONBLOCK != 0;
         Ok(KBox::new(
             SimLogDevice {
-                shared: shared::get()?,
-                nonblock,
+                f: DeviceFile::open(file)?,
             },
             GFP_KERNEL,
         )?)
@@ -156,7 +150,7 @@ impl MiscDevice for SimLogDevice {
 
     fn read_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
         let me = kiocb.file();
-        let sh = &me.shared;
+        let sh = &me.f.shared;
         if iov.len() < LogRecord::SIZE {
             return Err(EINVAL);
         }
@@ -168,7 +162,7 @@ impl MiscDevice for SimLogDevice {
                 if log.closed {
                     return Ok(0);
                 }
-                if me.nonblock {
+                if me.f.nonblock {
                     return Err(EAGAIN);
                 }
                 if sh.simlog_readable.wait_interruptible(&mut log) {
