@@ -30,7 +30,7 @@ bash "$HERE/setup-toolchain.sh" || die "toolchain set-up failed"
 if [ "$host" = 1 ]; then
   log "host tests: cargo test --workspace (userspace/)"
   out=$(mktemp)
-  (cd userspace && cargo test --workspace --color never 2>&1) | tee "$out"
+  (cd userspace && cargo test --workspace --no-fail-fast --color never 2>&1) | tee "$out"
   rc=${PIPESTATUS[0]}
   p=$(grep -E '^test result:' "$out" | sed -E 's/.* ([0-9]+) passed; ([0-9]+) failed.*/\1/' | paste -sd+ | bc)
   f=$(grep -E '^test result:' "$out" | sed -E 's/.* ([0-9]+) passed; ([0-9]+) failed.*/\2/' | paste -sd+ | bc)
