@@ -246,7 +246,7 @@ proptest! {
         if v.abs() >= 1.0 / 512.0 || v == 0.0 {
             prop_assert_eq!(back, if v == 0.0 { 0.0 } else { v });
         } else {
-            prop_assert!(((back as f64) - (v as f64)).abs() <= 1.0 / (TWO32 as f64 * 2.0),
+            prop_assert!(((back as f64) - (v as f64)).abs() <= 1.0 / (TWO32 * 2.0),
                 "v={} back={}", v, back);
         }
     }
