@@ -1,0 +1,71 @@
+#!/bin/sh
+# In-guest real-time benchmark (scripts/bench-rt.sh boots it; not part of the
+# test suite). Args: CYCLES [cyclictest].
+# Phase "idle": insmod, N servo cycles with nothing else running, stats dump.
+# Phase "load": insmod again, N cycles under a busybox userspace load (busy
+# loops, dd, fork storm, all nice 0), stats dump, load killed.
+# With "cyclictest" (binary + libs added by the host script), cyclictest runs
+# at the same period and SCHED_FIFO 80 next to the module in each phase.
+# Dumps are between "BENCH-BEGIN <phase>" / "BENCH-END <phase>" markers; the
+# host script parses them. Figures only, no assertions on timing.
+. /tests/lib.sh
+# cyclictest wants POSIX shared memory.
+mkdir -p /dev/shm && mount -t tmpfs shm /dev/shm 2>/dev/null
+N=${1:-100000}
+CT=${2:-}
+echo "# bench: mode $HAP_MODE, period $HAP_PERIOD_US us, $N cycles per phase"
+
+start_load() {
+  LOAD_PIDS=""
+  for i in 1 2 3; do
+    sh -c 'while :; do :; done' & LOAD_PIDS="$LOAD_PIDS $!"
+  done
+  dd if=/dev/zero of=/dev/null bs=1M 2>/dev/null & LOAD_PIDS="$LOAD_PIDS $!"
+  sh -c 'while :; do /bin/true; done' & LOAD_PIDS="$LOAD_PIDS $!"
+  echo "# load started: pids$LOAD_PIDS"
+}
+stop_load() {
+  # shellcheck disable=SC2086
+  kill $LOAD_PIDS 2>/dev/null
+  wait $LOAD_PIDS 2>/dev/null
+  echo "# load stopped"
+}
+
+phase() {
+  name=$1
+  check "$name: insmod period_us=$HAP_PERIOD_US" insmod $HAP_KO period_us=$HAP_PERIOD_US
+  [ "$name" = load ] && start_load
+  ctpid=""
+  if [ -n "$CT" ]; then
+    cyclictest -m -p 80 -i "$HAP_PERIOD_US" -l "$N" -q > /tmp/ct.$name 2>&1 &
+    ctpid=$!
+  fi
+  t0=$(now_ms)
+  c=$(stat_value cycles)
+  while [ "${c:-0}" -lt "$N" ]; do
+    sleep 1
+    c=$(stat_value cycles)
+  done
+  t1=$(now_ms)
+  # Snapshot at once (the stats keep counting while the shell works).
+  cat /dev/hap_stats > /tmp/stats.$name
+  [ -n "$ctpid" ] && wait "$ctpid"
+  [ "$name" = load ] && stop_load
+  echo "BENCH-BEGIN $name"
+  echo "guest_ms: $((t1 - t0))"
+  cat /tmp/stats.$name
+  if [ -n "$CT" ]; then
+    sed 's/^/cyclictest: /' /tmp/ct.$name
+  fi
+  echo "BENCH-END $name"
+  check "$name: rmmod" rmmod hapticctrl
+}
+
+if [ -n "$CT" ]; then
+  check "cyclictest runs in the guest" cyclictest -m -p 80 -i "$HAP_PERIOD_US" -l 10 -q
+  grep -q . /tmp/check.out || CT=""
+  sed 's/^/# cyclictest probe: /' /tmp/check.out
+fi
+phase idle
+phase load
+finish

@@ -1,0 +1,216 @@
+//! Driver for the per-step cost figures of `scripts/bench-step.sh`.
+//!
+//! * `servo_steps K` runs K full SERVO cycles (`hap_core::cycle::ServoCycle`:
+//!   synchronizer, servo step, answer encoding, log record) with a scripted
+//!   effort and a VPr coupled to the arm's own VP. Run it under
+//!   `valgrind --tool=callgrind` for K = 1000 and 2000: the Ir difference
+//!   divided by 1000 is the instruction count of one cycle (setup cancels).
+//! * `servo_steps rt SECONDS PERIOD_US` runs the same cycle in a periodic
+//!   loop (absolute `clock_nanosleep` on CLOCK_MONOTONIC) and prints the
+//!   wake-up latency and the cycle time, like cyclictest. Start it under
+//!   `chrt -f 80` for a SCHED_FIFO figure.
+
+use hap_core::config::{CommandType, ServoConfig};
+use hap_core::cycle::ServoCycle;
+use hap_core::effort::EffortSample;
+use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench};
+use hap_core::protocol::MAX_FRAME_LEN;
+use hap_core::servo::{PowerRequest, ServoInputs, ServoMode};
+use hap_core::simulator::LogRecord;
+use std::hint::black_box;
+
+/// The scripted world: effort, VPr and the output buffers of one cycle.
+struct Script {
+    cycle: ServoCycle,
+    cfg: ServoConfig,
+    vpr: hap_core::vp::VpReceived,
+    frames: [[u8; MAX_FRAME_LEN]; 2],
+    lens: [usize; 2],
+    log: [u8; LogRecord::SIZE],
+    seq: u32,
+    i: u32,
+}
+
+impl Script {
+    fn new(period_us: u32) -> Script {
+        let mut cycle = ServoCycle::new(period_us);
+        cycle.servo.init();
+        let cfg = ServoConfig {
+            command_type: CommandType::Impedance,
+            ..Default::default()
+        };
+        let vpr = hap_core::vp::VpReceived {
+            valid: true,
+            ..Default::default()
+        };
+        let mut s = Script {
+            cycle,
+            cfg,
+            vpr,
+            frames: [[0u8; MAX_FRAME_LEN]; 2],
+            lens: [0; 2],
+            log: [0u8; LogRecord::SIZE],
+            seq: 0,
+            i: 0,
+        };
+        s.step(PowerRequest::On);
+        s
+    }
+
+    /// One SERVO cycle: scripted effort, VPr = the last VP's pose plus a
+    /// small sinusoidal offset (a coupled virtual object), answers and log
+    /// record encoded as the kernel does.
+    fn step(&mut self, power: PowerRequest) {
+        let i = self.i;
+        self.i = i.wrapping_add(1);
+        let t = Fx::from_ratio((i % 6283) as i64, 1000);
+        let (sin, cos) = t.sin_cos();
+        let effort = EffortSample {
+            wrench: Wrench {
+                force: Vec3::new(sin, cos, Fx::from_ratio(1, 2)),
+                torque: Vec3::ZERO,
+            },
+            dead_man: true,
+            buttons: 0,
+        };
+        let inputs = ServoInputs {
+            power_request: power,
+            live_effort: Some(effort),
+        };
+        let here = self.cycle.servo.vp().handle_pose.position;
+        self.vpr.pose = Pose {
+            position: here.add(Vec3::new(
+                Fx::from_ratio(1, 100).mul_sat(sin),
+                Fx::from_ratio(1, 200).mul_sat(cos),
+                Fx::ZERO,
+            )),
+            orientation: Quat::IDENTITY,
+        };
+        self.vpr.seq = i;
+        self.vpr.received_cycle = self.cycle.servo.cycle();
+        let r = self.cycle.run(
+            black_box(&inputs),
+            &self.cfg,
+            Some(&self.vpr),
+            ServoMode::Main,
+        );
+        let seq = &mut self.seq;
+        let n = ServoCycle::encode_answers(
+            &r.vp,
+            1,
+            i,
+            || {
+                *seq = seq.wrapping_add(1);
+                *seq
+            },
+            &mut self.frames,
+            &mut self.lens,
+        );
+        self.cycle.servo.log_record().encode(&mut self.log);
+        black_box((n, &self.frames, &self.log));
+    }
+}
+
+#[repr(C)]
+struct Timespec {
+    tv_sec: i64,
+    tv_nsec: i64,
+}
+
+extern "C" {
+    fn clock_gettime(clk: i32, ts: *mut Timespec) -> i32;
+    fn clock_nanosleep(clk: i32, flags: i32, req: *const Timespec, rem: *mut Timespec) -> i32;
+}
+
+const CLOCK_MONOTONIC: i32 = 1;
+const TIMER_ABSTIME: i32 = 1;
+
+fn now_ns() -> i64 {
+    let mut ts = Timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec for the call's duration.
+    unsafe { clock_gettime(CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec * 1_000_000_000 + ts.tv_nsec
+}
+
+fn sleep_until_ns(t: i64) {
+    let ts = Timespec {
+        tv_sec: t / 1_000_000_000,
+        tv_nsec: t % 1_000_000_000,
+    };
+    loop {
+        // SAFETY: `ts` is a valid timespec; a null `rem` is allowed with TIMER_ABSTIME.
+        let rc =
+            unsafe { clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, std::ptr::null_mut()) };
+        // Non-zero only when a signal interrupted the sleep: sleep again.
+        if rc == 0 {
+            break;
+        }
+    }
+}
+
+/// min / avg / p99 / p99.9 / max of `v` in µs (sorts it).
+fn summary(v: &mut [i64]) -> String {
+    v.sort_unstable();
+    let n = v.len();
+    let q = |p: f64| v[((n as f64 * p).ceil() as usize).clamp(1, n) - 1];
+    let avg = v.iter().sum::<i64>() as f64 / n as f64;
+    format!(
+        "min {:.1} avg {:.1} p99 {:.1} p99.9 {:.1} max {:.1}",
+        v[0] as f64 / 1e3,
+        avg / 1e3,
+        q(0.99) as f64 / 1e3,
+        q(0.999) as f64 / 1e3,
+        v[n - 1] as f64 / 1e3
+    )
+}
+
+fn rt_loop(seconds: u32, period_us: u32) {
+    let mut s = Script::new(period_us);
+    let period = i64::from(period_us) * 1000;
+    let n = (u64::from(seconds) * 1_000_000 / u64::from(period_us)) as usize;
+    let mut wake = Vec::with_capacity(n);
+    let mut exec = Vec::with_capacity(n);
+    let mut misses = 0u32;
+    let mut next = now_ns() + period;
+    for _ in 0..n {
+        sleep_until_ns(next);
+        let t0 = now_ns();
+        s.step(PowerRequest::None);
+        let t1 = now_ns();
+        wake.push(t0 - next);
+        exec.push(t1 - t0);
+        next += period;
+        if t1 > next - period / 4 {
+            misses += 1;
+        }
+    }
+    println!("host rt loop: {n} cycles at {period_us} us");
+    println!("wakeup_us: {}", summary(&mut wake));
+    println!("cycle_us: {}", summary(&mut exec));
+    println!("misses_3/4_period: {misses}");
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    match args.get(1).map(String::as_str) {
+        Some("rt") => {
+            let secs = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(10);
+            let period = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(1000);
+            rt_loop(secs, period);
+        }
+        other => {
+            let k: u32 = other.and_then(|a| a.parse().ok()).unwrap_or(1000);
+            let mut s = Script::new(1000);
+            for _ in 0..k {
+                s.step(PowerRequest::None);
+            }
+            println!(
+                "{k} servo cycles, final handle position {:?}",
+                s.cycle.servo.vp().handle_pose.position
+            );
+        }
+    }
+}
