@@ -10,6 +10,10 @@ pub fn check(data: &[u8]) {
         let mut buf = [0u8; MAX_FRAME_LEN];
         let n = encode(&h, &f, &mut buf);
         assert_eq!(n, data.len(), "accepted frame of the wrong length");
-        assert_eq!(decode(&buf[..n]), Ok((h, f)), "decode/encode not a fixed point");
+        assert_eq!(
+            decode(&buf[..n]),
+            Ok((h, f)),
+            "decode/encode not a fixed point"
+        );
     }
 }

@@ -24,7 +24,10 @@ fn main() {
             return;
         }
     }
-    let n: u64 = args.first().and_then(|a| a.parse().ok()).unwrap_or(1_000_000);
+    let n: u64 = args
+        .first()
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(1_000_000);
     let mut s = 0x2545_F491_4F6C_DD1Du64;
     for i in 0..n {
         let r = xorshift(&mut s);
