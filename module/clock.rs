@@ -231,8 +231,8 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
             }
             FailSafeAction::CloseProtocol => {
                 sh.proto.lock().close();
-                sh.rtf_out.close();
-                sh.rtf_in.close();
+                sh.rtf_out.close(true);
+                sh.rtf_in.close(true);
             }
             FailSafeAction::StopTasks => {
                 sh.stopping.store(true, Release);
@@ -240,10 +240,8 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
                 sh.rtf_in_ready.complete_all();
             }
             FailSafeAction::ReleaseResources => {
-                let mut log = sh.simlog.lock();
-                log.closed = true;
-                drop(log);
-                sh.simlog_readable.notify_all();
+                // The position log stays readable until drained.
+                sh.simlog.close(false);
             }
         }
         pr_warn!(

@@ -227,16 +227,12 @@ impl Drop for HapticCtrl {
         // then destroy the channels and free the memory.
         sh.proto.lock().close();
         sh.stopping.store(true, Release);
-        sh.rtf_out.close();
-        sh.rtf_in.close();
+        sh.rtf_out.close(true);
+        sh.rtf_in.close(true);
         sh.cycle_start.complete_all();
         sh.check_due.complete_all();
         sh.rtf_in_ready.complete_all();
-        {
-            let mut log = sh.simlog.lock();
-            log.closed = true;
-        }
-        sh.simlog_readable.notify_all();
+        sh.simlog.close(true);
         drop(self.tasks.take());
         drop(self.devices.take());
         shared::publish(None);

@@ -43,10 +43,6 @@ impl<const REC: usize> Ring<REC> {
         self.len
     }
 
-    pub(crate) fn is_empty(&self) -> bool {
-        self.len == 0
-    }
-
     pub(crate) fn is_full(&self) -> bool {
         self.len >= self.capacity()
     }

@@ -31,16 +31,19 @@ use protocol::MAX_FRAME_LEN;
 /// Frames each FIFO holds.
 pub(crate) const RTF_FRAMES: usize = 128;
 
-pub(crate) struct FifoState {
-    pub(crate) ring: Ring<MAX_FRAME_LEN>,
-    /// Closed by the fail-safe or at teardown: readers see end of file.
-    pub(crate) closed: bool,
+pub(crate) struct FifoState<const REC: usize> {
+    ring: Ring<REC>,
+    /// Closed by the fail-safe or at teardown: readers see end of file once
+    /// what is queued has been read.
+    closed: bool,
 }
 
+/// An RT-FIFO of records of at most `REC` bytes: rtf_in and rtf_out hold
+/// frames, the simulator's position log holds `LogRecord`s.
 #[pin_data]
-pub(crate) struct RtFifo {
+pub(crate) struct RtFifo<const REC: usize> {
     #[pin]
-    state: Mutex<FifoState>,
+    state: Mutex<FifoState<REC>>,
     #[pin]
     readable: CondVar,
 }
@@ -51,9 +54,9 @@ pub(crate) enum PushError {
     Closed,
 }
 
-impl RtFifo {
-    pub(crate) fn new() -> Result<impl PinInit<Self>> {
-        let ring = Ring::new(RTF_FRAMES)?;
+impl<const REC: usize> RtFifo<REC> {
+    pub(crate) fn new(capacity: usize) -> Result<impl PinInit<Self>> {
+        let ring = Ring::new(capacity)?;
         Ok(pin_init!(Self {
             state <- new_mutex!(FifoState { ring, closed: false }),
             readable <- new_condvar!(),
@@ -88,12 +91,12 @@ impl RtFifo {
     }
 
     /// Take the oldest frame, without waiting.
-    pub(crate) fn pop(&self, out: &mut [u8; MAX_FRAME_LEN]) -> Option<usize> {
+    pub(crate) fn pop(&self, out: &mut [u8; REC]) -> Option<usize> {
         self.state.lock().ring.pop(out)
     }
 
     /// Take the oldest frame, waiting for one unless `nonblock`. `Ok(0)`: closed.
-    pub(crate) fn pop_wait(&self, out: &mut [u8; MAX_FRAME_LEN], nonblock: bool) -> Result<usize> {
+    pub(crate) fn pop_wait(&self, out: &mut [u8; REC], nonblock: bool) -> Result<usize> {
         let mut s = self.state.lock();
         loop {
             if let Some(n) = s.ring.pop(out) {
@@ -111,11 +114,15 @@ impl RtFifo {
         }
     }
 
-    /// Close: wake every reader (they see end of file); drop queued frames.
-    pub(crate) fn close(&self) {
+    /// Close: no more pushes; wake every reader. With `discard`, what is
+    /// queued is dropped (readers see end of file at once); without, readers
+    /// drain it first (the position log, kept for post-mortem analysis).
+    pub(crate) fn close(&self, discard: bool) {
         let mut s = self.state.lock();
         s.closed = true;
-        s.ring.clear();
+        if discard {
+            s.ring.clear();
+        }
         drop(s);
         self.readable.notify_all();
     }

@@ -96,12 +96,7 @@ fn servo_cycle(sh: &Shared, data: &mut ServoData) {
     // The simulator's position log.
     let mut rec = [0u8; crate::hap_core::simulator::LogRecord::SIZE];
     data.cycle.servo.log_record().encode(&mut rec);
-    let mut log = sh.simlog.lock();
-    if !log.closed {
-        log.ring.push_overwrite(&rec);
-    }
-    drop(log);
-    sh.simlog_readable.notify_one();
+    sh.simlog.push_overwrite(&rec);
 }
 
 /// Fault injection (`/dev/hap_fault`): stay busy past the 3/4 check, outside

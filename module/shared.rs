@@ -8,20 +8,19 @@
 use crate::{
     completion::Completion,
     hap_core::{
-        config::ServoConfig, cycle::ServoCycle, proto_in::ProtoIn, simulator::LogRecord,
-        stats::HapStats,
+        config::ServoConfig, cycle::ServoCycle, proto_in::ProtoIn, protocol::MAX_FRAME_LEN,
+        simulator::LogRecord, stats::HapStats,
     },
-    ring::Ring,
-    rtf::{RtFifo, RtfInCounters},
+    rtf::{RtFifo, RtfInCounters, RTF_FRAMES},
     rwsem::RwSem,
 };
 use kernel::{
-    c_str, new_condvar, new_mutex,
+    c_str, new_mutex,
     prelude::*,
     static_lock_class,
     sync::{
         atomic::{Atomic, Relaxed},
-        Arc, CondVar, Mutex,
+        Arc, Mutex,
     },
     time::{Instant, Monotonic},
 };
@@ -31,12 +30,6 @@ pub(crate) struct ServoData {
     pub(crate) cycle: ServoCycle,
     /// SERVO's copy of the configuration, refreshed when the rwsem is free.
     pub(crate) config: ServoConfig,
-}
-
-/// The simulator's position log: one `LogRecord` per cycle.
-pub(crate) struct SimLog {
-    pub(crate) ring: Ring<{ LogRecord::SIZE }>,
-    pub(crate) closed: bool,
 }
 
 /// Position-log records kept (about 4 s at 1 kHz).
@@ -68,9 +61,9 @@ pub(crate) struct Shared {
     #[pin]
     pub(crate) rtf_in_ready: Completion,
     #[pin]
-    pub(crate) rtf_in: RtFifo,
+    pub(crate) rtf_in: RtFifo<MAX_FRAME_LEN>,
     #[pin]
-    pub(crate) rtf_out: RtFifo,
+    pub(crate) rtf_out: RtFifo<MAX_FRAME_LEN>,
     pub(crate) rtf_in_counters: RtfInCounters,
 
     /// `mtx_proto`: the protocol state and the VPr shared memory. PROTO_IN
@@ -86,10 +79,10 @@ pub(crate) struct Shared {
     /// Timing statistics and counters (CLOCK updates, /dev/hap_stats reads).
     #[pin]
     pub(crate) stats: Mutex<KBox<HapStats>>,
+    /// The simulator's position log: one `LogRecord` per cycle (an RT-FIFO
+    /// to the off-line analysis; the oldest record goes when nobody reads).
     #[pin]
-    pub(crate) simlog: Mutex<SimLog>,
-    #[pin]
-    pub(crate) simlog_readable: CondVar,
+    pub(crate) simlog: RtFifo<{ LogRecord::SIZE }>,
 
     // Flags and stamps (lock-free between the tasks).
     /// SERVO is inside its cycle (the spec's `servo_working`).
@@ -152,12 +145,9 @@ impl Shared {
             KBox::<HapStats>::new_uninit(GFP_KERNEL)?,
             HapStats::new(period_us),
         );
-        let simlog = SimLog {
-            ring: Ring::new(SIMLOG_RECORDS)?,
-            closed: false,
-        };
-        let rtf_in = RtFifo::new()?;
-        let rtf_out = RtFifo::new()?;
+        let simlog = RtFifo::new(SIMLOG_RECORDS)?;
+        let rtf_in = RtFifo::new(RTF_FRAMES)?;
+        let rtf_out = RtFifo::new(RTF_FRAMES)?;
         Ok(try_pin_init!(Self {
             period_us,
             epoch: Instant::now(),
@@ -171,8 +161,7 @@ impl Shared {
             data <- new_mutex!(data),
             config <- RwSem::new(ServoConfig::default(), c_str!("hap_config"), static_lock_class!()),
             stats <- new_mutex!(stats),
-            simlog <- new_mutex!(simlog),
-            simlog_readable <- new_condvar!(),
+            simlog <- simlog,
             servo_working: Atomic::new(false),
             servo_waiting: Atomic::new(false),
             tick: Atomic::new(0),

@@ -154,33 +154,20 @@ impl MiscDevice for SimLogDevice {
         if iov.len() < LogRecord::SIZE {
             return Err(EINVAL);
         }
+        // One record, waiting for it if need be; then whatever else fits.
         let mut rec = [0u8; LogRecord::SIZE];
-        let mut total = 0usize;
-        {
-            let mut log = sh.simlog.lock();
-            while log.ring.is_empty() {
-                if log.closed {
-                    return Ok(0);
-                }
-                if me.f.nonblock {
-                    return Err(EAGAIN);
-                }
-                if sh.simlog_readable.wait_interruptible(&mut log) {
-                    return Err(ERESTARTSYS);
-                }
-            }
+        if sh.simlog.pop_wait(&mut rec, me.f.nonblock)? == 0 {
+            return Ok(0);
         }
-        // Copy record by record without holding the lock across user copies.
-        while iov.len() >= LogRecord::SIZE {
-            let got = sh.simlog.lock().ring.pop(&mut rec);
-            if got.is_none() {
-                break;
-            }
+        let mut total = 0usize;
+        loop {
             if iov.copy_to_iter(&rec) != LogRecord::SIZE {
                 return if total > 0 { Ok(total) } else { Err(EFAULT) };
             }
             total += LogRecord::SIZE;
+            if iov.len() < LogRecord::SIZE || sh.simlog.pop(&mut rec).is_none() {
+                return Ok(total);
+            }
         }
-        Ok(total)
     }
 }

@@ -33,6 +33,8 @@ check_not "the blocked reader saw end of file and exited" kill -0 $reader
 c0=$(stat_value timer_ticks); sleep_cycles 50; c1=$(stat_value timer_ticks)
 expect "the cycle is stopped" "$c1" = "$c0"
 check_not "a power-on request after the fail-safe does not re-enable motors" sh -c 'echo 1 > /dev/hap_power; sleep 0.1; grep -q "^motors_enabled: 1" /dev/hap_stats'
+hapdev simlog > /tmp/post.txt
+expect "the position log stays readable after the fail-safe (post-mortem)" "$(sed -n 's/^records: //p' /tmp/post.txt)" -gt 10
 check "rmmod after the fail-safe" rmmod hapticctrl
 check "dmesg: unloaded" dmesg_has 'hapticctrl: unloaded'
 finish
