@@ -74,7 +74,7 @@ for name, body in re.findall(r"BENCH-BEGIN (\w+)\r?\n(.*?)BENCH-END \1", text, r
         if m:
             ct = tuple(int(x) for x in m.groups())
             continue
-        m = re.match(r"([\w.]+): (\S+)", line)
+        m = re.match(r"([\w.]+): (.+)", line)
         if m and not line.startswith("cyclictest"):
             kv[m[1]] = m[2]
     phases[name] = (kv, ct)
@@ -97,6 +97,8 @@ def row(label, f):
     rows.append((label, vals))
 row("servo cycles measured", lambda kv, ct: kv["cycles"])
 row("guest time for them (ms)", lambda kv, ct: kv["guest_ms"])
+row("guest CPU busy (%)", lambda kv, ct: kv["cpu_busy_pct"])
+row("guest loadavg 1/5/15 min", lambda kv, ct: kv["loadavg"])
 for k, lab in (("wakeup", "SERVO wake-up after CLOCK"), ("exec", "full cycle (SERVO exec)"), ("jitter", "period jitter |dT|")):
     row(f"{lab} min (us)", lambda kv, ct, k=k: us(kv[k + ".min_ns"]))
     row(f"{lab} avg (us)", lambda kv, ct, k=k: us(kv[k + ".avg_ns"]))

@@ -31,6 +31,13 @@ stop_load() {
   echo "# load stopped"
 }
 
+# cpu_sample: "total idle" jiffies from /proc/stat (to show the load ran).
+cpu_sample() {
+  # shellcheck disable=SC2046
+  set -- $(head -1 /proc/stat)
+  echo "$(($2 + $3 + $4 + $5 + $6 + $7 + $8)) $5"
+}
+
 phase() {
   name=$1
   check "$name: insmod period_us=$HAP_PERIOD_US" insmod $HAP_KO period_us=$HAP_PERIOD_US
@@ -41,18 +48,24 @@ phase() {
     ctpid=$!
   fi
   t0=$(now_ms)
+  s0=$(cpu_sample)
   c=$(stat_value cycles)
   while [ "${c:-0}" -lt "$N" ]; do
     sleep 1
     c=$(stat_value cycles)
   done
   t1=$(now_ms)
+  s1=$(cpu_sample)
   # Snapshot at once (the stats keep counting while the shell works).
   cat /dev/hap_stats > /tmp/stats.$name
   [ -n "$ctpid" ] && wait "$ctpid"
   [ "$name" = load ] && stop_load
   echo "BENCH-BEGIN $name"
   echo "guest_ms: $((t1 - t0))"
+  # shellcheck disable=SC2086
+  set -- $s0 $s1
+  [ "$3" -gt "$1" ] && echo "cpu_busy_pct: $(( 100 - 100 * ($4 - $2) / ($3 - $1) ))"
+  echo "loadavg: $(cut -d' ' -f1-3 /proc/loadavg)"
   cat /tmp/stats.$name
   if [ -n "$CT" ]; then
     sed 's/^/cyclictest: /' /tmp/ct.$name
