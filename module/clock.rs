@@ -176,9 +176,10 @@ pub(crate) fn clock_main(sh: &Shared) {
                 let start = sh.servo_start_ns.load(Acquire);
                 let end = sh.servo_end_ns.load(Acquire);
                 if start >= expiry {
-                    st.wakeup.record_ns((start - expiry) as u64);
+                    st.wakeup
+                        .record_ns(start.saturating_sub(expiry).unsigned_abs());
                     if !working && end >= start {
-                        st.exec.record_ns((end - start) as u64);
+                        st.exec.record_ns(end.saturating_sub(start).unsigned_abs());
                     }
                 }
                 let t = sh.tick_ns.load(Relaxed);

@@ -57,16 +57,16 @@ impl<const REC: usize> Ring<REC> {
         }
         let mut kept_all = true;
         if self.len == cap {
-            self.head = (self.head + 1) % cap;
-            self.len -= 1;
+            self.head = self.head.wrapping_add(1) % cap;
+            self.len = self.len.saturating_sub(1);
             self.dropped = self.dropped.saturating_add(1);
             kept_all = false;
         }
-        let idx = (self.head + self.len) % cap;
+        let idx = self.head.wrapping_add(self.len) % cap;
         if let (Some(slot), Some(l)) = (self.slots.get_mut(idx), self.lens.get_mut(idx)) {
             slot[..rec.len()].copy_from_slice(rec);
             *l = rec.len() as u16;
-            self.len += 1;
+            self.len = self.len.saturating_add(1);
             self.pushed = self.pushed.saturating_add(1);
         }
         kept_all
@@ -89,8 +89,8 @@ impl<const REC: usize> Ring<REC> {
         let idx = self.head;
         let n = usize::from(*self.lens.get(idx)?);
         out.copy_from_slice(self.slots.get(idx)?);
-        self.head = (self.head + 1) % self.capacity();
-        self.len -= 1;
+        self.head = self.head.wrapping_add(1) % self.capacity().max(1);
+        self.len = self.len.saturating_sub(1);
         Some(n)
     }
 

@@ -106,8 +106,11 @@ fn inject_overrun(sh: &Shared) {
     if left == 0 {
         return;
     }
-    sh.fault_overruns.store(left - 1, Release);
-    let until = sh.expiry_ns.load(Acquire) + sh.period_ns() / 8 * 7;
+    sh.fault_overruns.store(left.saturating_sub(1), Release);
+    let until = sh
+        .expiry_ns
+        .load(Acquire)
+        .saturating_add(sh.period_ns() / 8 * 7);
     while sh.now_ns() < until && !sh.is_stopping() {
         kernel::time::delay::udelay(kernel::time::Delta::from_micros(5));
     }

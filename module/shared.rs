@@ -202,7 +202,7 @@ impl Shared {
     }
 
     pub(crate) fn period_ns(&self) -> i64 {
-        i64::from(self.period_us) * 1000
+        i64::from(self.period_us).saturating_mul(1000)
     }
 
     pub(crate) fn is_stopping(&self) -> bool {
