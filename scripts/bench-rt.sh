@@ -9,7 +9,8 @@
 #
 # Mode: tcg-icount -- guest time is the guest's instruction count (~1 ns per
 # instruction): the figures are deterministic COSTS, not wall-clock latencies
-# of real hardware. No KVM on this machine kind (toolchain-notes.md).
+# of real hardware. No KVM on this machine kind (toolchain-notes.md); where
+# qemu-run.sh finds a working KVM it uses it, and the report names the mode.
 #
 # Default N = 10^5 per phase (about 7 min wall here: ~1.9 ms wall per guest
 # cycle); --long = 10^6 per phase (about 65 min, not for CI). Results in
@@ -25,7 +26,7 @@ while [ $# -gt 0 ]; do
     --long) cycles=1000000 ;;
     --no-cyclictest) use_ct=0 ;;
     --out) out=$2; shift ;;
-    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+    -h|--help) awk 'NR > 1 && /^#/ { print; next } NR > 1 { exit }' "$0"; exit 0 ;;
     *) echo "bench-rt: unknown option $1" >&2; exit 2 ;;
   esac
   shift
@@ -114,7 +115,9 @@ row("ticks not posted", lambda kv, ct: kv["ticks_not_posted"])
 row("fail-safe", lambda kv, ct: kv["fail_safe"])
 row("cyclictest min/avg/max (us)", lambda kv, ct: "%d / %d / %d" % ct if ct else "not run")
 w = max(len(r[0]) for r in rows)
-print(f"# hapticctrl bench-rt: mode {mode} (guest instruction time, ~1 ns/instruction; costs, not hardware latencies)")
+meaning = {"tcg-icount": "guest instruction time, ~1 ns/instruction; costs, not hardware latencies",
+           "kvm": "hardware virtualisation: guest wall-clock latencies on this host"}.get(mode, "see Documentation/development.md, Timing modes")
+print(f"# hapticctrl bench-rt: mode {mode} ({meaning})")
 print(f"# period {period} us, {n} cycles per phase, SERVO SCHED_FIFO 80, cyclictest -m -p 80 -i {period} -l {n} -q next to it")
 print(f"# load phase: 3 x sh busy loop, dd if=/dev/zero of=/dev/null bs=1M, fork storm (/bin/true loop), nice 0")
 print(f"# wall time of the whole run on this host: {wall} s")

@@ -22,7 +22,7 @@ while [ $# -gt 0 ]; do
     --no-rt) rt=0 ;;
     --rt-seconds) rt_s=$2; shift ;;
     --period-us) period_us=$2; shift ;;
-    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+    -h|--help) awk 'NR > 1 && /^#/ { print; next } NR > 1 { exit }' "$0"; exit 0 ;;
     *) echo "bench-step: unknown option $1" >&2; exit 2 ;;
   esac
   shift
