@@ -603,6 +603,22 @@ fn set_field(s: &mut StatsSummary, key: &str, v: &str) -> Result<(), ParseErrorK
     Ok(())
 }
 
+/// The `key: value` lines of a text in the `/dev/hap_stats` shape (also the
+/// bridge's counters file), read leniently: lines without a colon or with an
+/// empty key are skipped; keys and values are trimmed. For tools that show
+/// or pick single values; [`parse_summary`] is the strict, typed reader.
+pub fn key_values(text: &str) -> impl Iterator<Item = (&str, &str)> {
+    text.lines().filter_map(|line| {
+        let (k, v) = line.split_once(':')?;
+        let k = k.trim();
+        if k.is_empty() {
+            None
+        } else {
+            Some((k, v.trim()))
+        }
+    })
+}
+
 /// Parse the text [`render_summary`] produces. Unknown keys are ignored;
 /// missing keys keep their default (0); `version: 1` is required.
 pub fn parse_summary(text: &str) -> Result<StatsSummary, ParseError> {

@@ -98,15 +98,8 @@ impl Counters {
 
 /// Parse `key: value` lines into pairs (blank and malformed lines skipped).
 pub fn parse_kv(text: &str) -> Vec<(String, String)> {
-    text.lines()
-        .filter_map(|line| {
-            let (k, v) = line.split_once(':')?;
-            let k = k.trim();
-            if k.is_empty() {
-                return None;
-            }
-            Some((k.to_string(), v.trim().to_string()))
-        })
+    hap_core::stats::key_values(text)
+        .map(|(k, v)| (k.to_string(), v.to_string()))
         .collect()
 }
 
