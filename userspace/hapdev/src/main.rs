@@ -15,7 +15,10 @@ use hap_core::{
     config::CommandType,
     cycle::ServoCycle,
     fixed::{Fx, Pose, Twist, Vec3},
-    protocol::{decode, encode, Frame, FrameHeader, CTRL_ACK_REQUEST, MAX_FRAME_LEN},
+    protocol::{
+        decode, encode, Frame, FrameHeader, FrameType, CTRL_ACK_REQUEST, MAGIC, MAX_FRAME_LEN,
+        VERSION,
+    },
     servo::{PowerRequest, ServoInputs, ServoMode},
     simulator::LogRecord,
 };
@@ -204,23 +207,19 @@ fn cmd_send(cli: &Cli, session: u16, seq: u32, ack: bool, what: &[String]) -> Re
             let mut x = 0x9E37_79B9_7F4A_7C15u64;
             (0..n)
                 .map(|i| {
-                    // Valid lengths with random contents (they reach PROTO_IN),
-                    // and, one in four, a valid header with a random payload.
-                    let lens = [20usize, 24, 28, 36, 48, 72];
-                    let len = lens[(xorshift(&mut x) % lens.len() as u64) as usize];
+                    // A request type's header and length (from hap-core's
+                    // frame table) with random contents: they reach PROTO_IN.
+                    let requests: Vec<FrameType> = FrameType::ALL
+                        .iter()
+                        .copied()
+                        .filter(|t| t.is_request())
+                        .collect();
+                    let ty = requests[(xorshift(&mut x) % requests.len() as u64) as usize];
+                    let len = ty.frame_len();
                     let mut b: Vec<u8> = (0..len).map(|_| xorshift(&mut x) as u8).collect();
-                    let ty = match len {
-                        20 => 0x02,
-                        24 => 0x0B,
-                        28 => 0x05,
-                        36 => 0x09,
-                        48 => 0x03,
-                        _ => 0x0C,
-                    };
-                    b[0] = b'H';
-                    b[1] = b'C';
-                    b[2] = 1;
-                    b[3] = ty;
+                    b[..2].copy_from_slice(&MAGIC);
+                    b[2] = VERSION;
+                    b[3] = ty as u8;
                     if i % 4 == 0 {
                         // Correct CRC over random payload: decoding must reject the values.
                         let c = hap_core::crc::crc32c(&b[..len - 4]);
