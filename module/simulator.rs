@@ -14,8 +14,7 @@
 
 use crate::{
     hap_core::{
-        effort::{parse_milli, validate_effort_sequence, EffortSample, EFFORT_CAPACITY},
-        fixed::{Fx, Vec3, Wrench},
+        effort::{parse_effort_command, EffortCommand, EffortCommandError, EFFORT_CAPACITY},
         simulator::LogRecord,
     },
     shared::DeviceFile,
@@ -33,25 +32,6 @@ const EFFORT_MAX_BYTES: usize = 64 * 1024;
 
 pub(crate) struct EffortDevice {
     f: DeviceFile,
-}
-
-/// `live fx fy fz tx ty tz`: the six values in thousandths, or `None`.
-fn parse_live(args: &[u8]) -> Option<[i32; 6]> {
-    let mut v = [0i32; 6];
-    let mut it = args
-        .split(|c| *c == b' ' || *c == b'\t')
-        .filter(|w| !w.is_empty());
-    for slot in v.iter_mut() {
-        *slot = parse_milli(it.next()?).ok()?;
-    }
-    if it.next().is_some() {
-        return None;
-    }
-    Some(v)
-}
-
-fn milli(m: i32) -> Fx {
-    Fx::from_milli(i64::from(m))
 }
 
 #[vtable]
@@ -75,58 +55,41 @@ impl MiscDevice for EffortDevice {
         }
         let mut text = KVVec::new();
         let n = iov.copy_from_iter_vec(&mut text, GFP_KERNEL)?;
-        let body = text.strip_suffix(b"\n").unwrap_or(&text);
-        if body == b"clear" {
-            let mut d = sh.data.lock();
-            let _ = d.cycle.servo.load_effort(&[]);
-            sh.effort_loaded_cycle.store(d.cycle.servo.cycle(), Relaxed);
-            return Ok(n);
+        // Parsed and validated by hap-core before mtx_data is taken: a refused
+        // write changes nothing and never holds SERVO's lock while parsing.
+        match parse_effort_command(&text, EFFORT_CAPACITY) {
+            Ok(EffortCommand::Clear) => {
+                let mut d = sh.data.lock();
+                let _ = d.cycle.servo.load_effort(&[]);
+                sh.effort_loaded_cycle.store(d.cycle.servo.cycle(), Relaxed);
+            }
+            Ok(EffortCommand::LiveOff) => sh.data.lock().cycle.servo.set_live_effort(None),
+            Ok(EffortCommand::Live(sample)) => {
+                sh.data.lock().cycle.servo.set_live_effort(Some(sample))
+            }
+            Ok(EffortCommand::Sequence { text, .. }) => {
+                let mut d = sh.data.lock();
+                let keys = d.cycle.servo.load_effort_text(text).map_err(|_| EINVAL)?;
+                let cycle = d.cycle.servo.cycle();
+                drop(d);
+                sh.effort_loaded_cycle.store(cycle, Release);
+                pr_info!(
+                    "effort sequence loaded: {} keyframes at cycle {}\n",
+                    keys,
+                    cycle
+                );
+            }
+            Err(EffortCommandError::BadLive) => return Err(EINVAL),
+            Err(EffortCommandError::Sequence(e)) => {
+                pr_warn!(
+                    "effort sequence refused: line {} column {}: {:?}\n",
+                    e.line,
+                    e.column,
+                    e.kind
+                );
+                return Err(EINVAL);
+            }
         }
-        if body == b"live off" {
-            sh.data.lock().cycle.servo.set_live_effort(None);
-            return Ok(n);
-        }
-        if let Some(args) = body.strip_prefix(b"live ") {
-            let v = parse_live(args).ok_or(EINVAL)?;
-            let wrench = Wrench {
-                force: Vec3 {
-                    x: milli(v[0]),
-                    y: milli(v[1]),
-                    z: milli(v[2]),
-                },
-                torque: Vec3 {
-                    x: milli(v[3]),
-                    y: milli(v[4]),
-                    z: milli(v[5]),
-                },
-            };
-            let mut sample = EffortSample::NONE;
-            sample.wrench = wrench;
-            sample.dead_man = true;
-            sh.data.lock().cycle.servo.set_live_effort(Some(sample));
-            return Ok(n);
-        }
-        // Validate before taking mtx_data: a refused text changes nothing
-        // and never holds SERVO's lock while parsing.
-        if let Err(e) = validate_effort_sequence(&text, EFFORT_CAPACITY) {
-            pr_warn!(
-                "effort sequence refused: line {} column {}: {:?}\n",
-                e.line,
-                e.column,
-                e.kind
-            );
-            return Err(EINVAL);
-        }
-        let mut d = sh.data.lock();
-        let keys = d.cycle.servo.load_effort_text(&text).map_err(|_| EINVAL)?;
-        let cycle = d.cycle.servo.cycle();
-        drop(d);
-        sh.effort_loaded_cycle.store(cycle, Release);
-        pr_info!(
-            "effort sequence loaded: {} keyframes at cycle {}\n",
-            keys,
-            cycle
-        );
         Ok(n)
     }
 }

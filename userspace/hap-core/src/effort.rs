@@ -329,6 +329,79 @@ fn parse_into(
     Ok(n)
 }
 
+/// What one write to the simulator's effort device (`/dev/hap_effort`) asks
+/// for. A trailing newline is ignored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EffortCommand<'a> {
+    /// A whole effort sequence (`.eff` text), already validated.
+    Sequence { text: &'a [u8], keyframes: usize },
+    /// `live fx fy fz tx ty tz` (N, N·m, decimals): the user holds the handle
+    /// (dead-man closed) with this wrench, overriding the sequence.
+    Live(EffortSample),
+    /// `live off`: back to the sequence.
+    LiveOff,
+    /// `clear`: unload the sequence.
+    Clear,
+}
+
+/// Why an effort-device write was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EffortCommandError {
+    /// `live` needs exactly six decimal values.
+    BadLive,
+    /// The text is neither a command nor a valid sequence.
+    Sequence(EffortParseError),
+}
+
+/// Parse one effort-device write (see [`EffortCommand`]); a sequence is
+/// validated against `capacity` keyframes but not stored.
+pub fn parse_effort_command(
+    text: &[u8],
+    capacity: usize,
+) -> Result<EffortCommand<'_>, EffortCommandError> {
+    let body = text.strip_suffix(b"\n").unwrap_or(text);
+    if body == b"clear" {
+        return Ok(EffortCommand::Clear);
+    }
+    if body == b"live off" {
+        return Ok(EffortCommand::LiveOff);
+    }
+    if let Some(args) = body.strip_prefix(b"live ") {
+        let mut v = [Fx::ZERO; 6];
+        let mut words = args
+            .split(|c| *c == b' ' || *c == b'\t')
+            .filter(|w| !w.is_empty());
+        for slot in v.iter_mut() {
+            let word = words.next().ok_or(EffortCommandError::BadLive)?;
+            let m = parse_milli(word).map_err(|_| EffortCommandError::BadLive)?;
+            *slot = Fx::from_milli(i64::from(m));
+        }
+        if words.next().is_some() {
+            return Err(EffortCommandError::BadLive);
+        }
+        let [fx, fy, fz, tx, ty, tz] = v;
+        return Ok(EffortCommand::Live(EffortSample {
+            wrench: Wrench {
+                force: Vec3 {
+                    x: fx,
+                    y: fy,
+                    z: fz,
+                },
+                torque: Vec3 {
+                    x: tx,
+                    y: ty,
+                    z: tz,
+                },
+            },
+            dead_man: true,
+            buttons: 0,
+        }));
+    }
+    let keyframes =
+        validate_effort_sequence(text, capacity).map_err(EffortCommandError::Sequence)?;
+    Ok(EffortCommand::Sequence { text, keyframes })
+}
+
 /// Plays a keyframe sequence (fixed capacity, no allocation) and an optional
 /// live override.
 #[derive(Clone, Debug)]

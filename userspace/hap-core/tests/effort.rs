@@ -150,3 +150,52 @@ fn a_refused_sequence_keeps_the_loaded_one() {
     assert_eq!(p.len(), 2, "the loaded sequence survives a refused load");
     assert_eq!(p.sample(500_000), before);
 }
+
+#[test]
+fn effort_device_commands() {
+    use hap_core::effort::{
+        parse_effort_command, EffortCommand, EffortCommandError, EFFORT_CAPACITY,
+    };
+    use hap_core::fixed::Fx;
+    assert_eq!(
+        parse_effort_command(b"clear\n", EFFORT_CAPACITY),
+        Ok(EffortCommand::Clear)
+    );
+    assert_eq!(
+        parse_effort_command(b"live off", EFFORT_CAPACITY),
+        Ok(EffortCommand::LiveOff)
+    );
+    match parse_effort_command(b"live 1.5 0 -2 0 0 0.25\n", EFFORT_CAPACITY) {
+        Ok(EffortCommand::Live(s)) => {
+            assert!(s.dead_man);
+            assert_eq!(s.wrench.force.x, Fx::from_milli(1500));
+            assert_eq!(s.wrench.force.z, Fx::from_milli(-2000));
+            assert_eq!(s.wrench.torque.z, Fx::from_milli(250));
+        }
+        other => panic!("{other:?}"),
+    }
+    for bad in [
+        &b"live 1 2 3 4 5"[..],
+        b"live 1 2 3 4 5 6 7",
+        b"live 1 2 x 4 5 6",
+        b"live ",
+    ] {
+        assert_eq!(
+            parse_effort_command(bad, EFFORT_CAPACITY),
+            Err(EffortCommandError::BadLive),
+            "{bad:?}"
+        );
+    }
+    let seq = b"0 1 0 0 0 0 0\n1000 2 0 0 0 0 0\n";
+    assert_eq!(
+        parse_effort_command(seq, EFFORT_CAPACITY),
+        Ok(EffortCommand::Sequence {
+            text: seq,
+            keyframes: 2
+        })
+    );
+    match parse_effort_command(b"0 1 2 3\n", EFFORT_CAPACITY) {
+        Err(EffortCommandError::Sequence(e)) => assert_eq!(e.line, 1),
+        other => panic!("{other:?}"),
+    }
+}
