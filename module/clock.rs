@@ -172,20 +172,13 @@ pub(crate) fn clock_main(sh: &Shared) {
         {
             let mut st = sh.stats.lock();
             if tick != last_tick_seen {
-                let expiry = sh.expiry_ns.load(Acquire);
-                let start = sh.servo_start_ns.load(Acquire);
-                let end = sh.servo_end_ns.load(Acquire);
-                if start >= expiry {
-                    st.wakeup
-                        .record_ns(start.saturating_sub(expiry).unsigned_abs());
-                    if !working && end >= start {
-                        st.exec.record_ns(end.saturating_sub(start).unsigned_abs());
-                    }
-                }
-                let t = sh.tick_ns.load(Relaxed);
-                if t > 0 {
-                    st.jitter.top(t as u64);
-                }
+                st.record_cycle(
+                    sh.expiry_ns.load(Acquire),
+                    sh.tick_ns.load(Relaxed),
+                    sh.servo_start_ns.load(Acquire),
+                    sh.servo_end_ns.load(Acquire),
+                    !working,
+                );
                 last_tick_seen = tick;
             }
             st.record_verdict(&verdict);

@@ -375,6 +375,32 @@ impl HapStats {
         }
     }
 
+    /// Account one cycle's timestamps (ns on one monotonic clock), taken by
+    /// CLOCK at its check: the timer's scheduled expiry, its callback's run
+    /// time, SERVO's start and end. SERVO's wake-up latency counts only if it
+    /// started this cycle (`start >= expiry`), its execution time only if it
+    /// also finished (`finished`).
+    pub fn record_cycle(
+        &mut self,
+        expiry_ns: i64,
+        tick_ns: i64,
+        start_ns: i64,
+        end_ns: i64,
+        finished: bool,
+    ) {
+        if start_ns >= expiry_ns {
+            self.wakeup
+                .record_ns(start_ns.saturating_sub(expiry_ns).unsigned_abs());
+            if finished && end_ns >= start_ns {
+                self.exec
+                    .record_ns(end_ns.saturating_sub(start_ns).unsigned_abs());
+            }
+        }
+        if tick_ns > 0 {
+            self.jitter.top(tick_ns.unsigned_abs());
+        }
+    }
+
     /// Account a rejected frame.
     pub fn record_reject(&mut self, e: DecodeError) {
         if let Some(n) = self.counters.frames_rejected.get_mut(e.reason_index()) {

@@ -113,3 +113,20 @@ fn supervisor_and_stats_agree() {
     assert_eq!(st.counters.misses, sup.total_misses());
     assert_eq!(st.counters.max_consecutive_misses, 5);
 }
+
+#[test]
+fn record_cycle_counts_only_what_servo_did() {
+    use hap_core::stats::HapStats;
+    let mut st = HapStats::new(1000);
+    // Woke 3 us after expiry, ran 60 us.
+    st.record_cycle(1_000_000, 1_000_500, 1_003_000, 1_063_000, true);
+    // Still working at the check: wake-up counted, execution not.
+    st.record_cycle(2_000_000, 2_000_400, 2_004_000, 1_063_000, false);
+    // Did not start this cycle (start is the previous one's): nothing.
+    st.record_cycle(3_000_000, 3_000_300, 2_004_000, 2_900_000, false);
+    assert_eq!(st.wakeup.count(), 2);
+    assert_eq!(st.wakeup.max_ns(), 4_000);
+    assert_eq!(st.exec.count(), 1);
+    assert_eq!(st.exec.max_ns(), 60_000);
+    assert_eq!(st.jitter.abs().count(), 2);
+}
