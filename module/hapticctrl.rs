@@ -56,7 +56,7 @@ use kthread::{KThread, SchedClass};
 use rtf::{RtfInDevice, RtfOutDevice};
 use shared::Shared;
 use simulator::{EffortDevice, SimLogDevice};
-use stats::StatsDevice;
+use stats::{HistDevice, StatsDevice};
 
 module! {
     type: HapticCtrl,
@@ -94,6 +94,7 @@ struct Devices {
     _stop: Device<StopDevice>,
     _power: Device<PowerDevice>,
     _stats: Device<StatsDevice>,
+    _hist: Device<HistDevice>,
     _effort: Device<EffortDevice>,
     _simlog: Device<SimLogDevice>,
     _fault: Device<FaultDevice>,
@@ -107,6 +108,7 @@ impl Devices {
             _stop: register(c_str!("hap_stop"))?,
             _power: register(c_str!("hap_power"))?,
             _stats: register(c_str!("hap_stats"))?,
+            _hist: register(c_str!("hap_hist"))?,
             _effort: register(c_str!("hap_effort"))?,
             _simlog: register(c_str!("hap_simlog"))?,
             _fault: register(c_str!("hap_fault"))?,

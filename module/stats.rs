@@ -4,12 +4,19 @@
 //! hap-core (`key: value` lines, cyclictest-style summary first), followed by
 //! the kernel's own lines (state, mode, device and protocol counters, the
 //! module's effective parameters). See Documentation/timing.md.
+//!
+//! `/dev/hap_hist`: the 1 µs histograms of the three timing series
+//! (wake-up, execution, period jitter), copied at open under the stats lock
+//! and rendered by hap-core outside it (`render_histograms`).
 
 use crate::{
     hap_core::{
         clock::MISS_LIMIT,
         proto_in::Reject,
-        stats::{render_summary, SliceWriter},
+        stats::{
+            render_histograms, render_summary, HistogramView, SliceWriter, HIST_BUCKETS,
+            HIST_RENDER_MAX, HIST_SERIES,
+        },
     },
     rtf::RTF_FRAMES,
     shared::{self, state, Shared, NEVER},
@@ -194,6 +201,49 @@ impl MiscDevice for StatsDevice {
         let n = render(&sh, &mut text);
         text.truncate(n);
         Ok(KBox::new(StatsDevice { text }, GFP_KERNEL)?)
+    }
+
+    fn read_iter(mut kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
+        let me = kiocb.file();
+        iov.simple_read_from_buffer(kiocb.ki_pos_mut(), &me.text)
+    }
+}
+
+pub(crate) struct HistDevice {
+    text: KVVec<u8>,
+}
+
+#[vtable]
+impl MiscDevice for HistDevice {
+    type Ptr = KBox<Self>;
+
+    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
+        let sh = shared::get()?;
+        // Allocate first; under the lock only copy (CLOCK takes this lock
+        // once per period: rendering ~100 KB there would hold it up).
+        let mut buckets =
+            KVVec::<u32>::with_capacity(HIST_SERIES.len() * HIST_BUCKETS, GFP_KERNEL)?;
+        let mut overflow = [0u64; HIST_SERIES.len()];
+        {
+            let st = sh.stats.lock();
+            for ((_, h), o) in st.histograms().iter().zip(overflow.iter_mut()) {
+                buckets.extend_from_slice(h.buckets(), GFP_KERNEL)?;
+                *o = h.overflow();
+            }
+        }
+        let view = |i: usize| HistogramView {
+            name: HIST_SERIES.get(i).copied().unwrap_or(""),
+            buckets: buckets
+                .get(i * HIST_BUCKETS..(i + 1) * HIST_BUCKETS)
+                .unwrap_or(&[]),
+            overflow: overflow.get(i).copied().unwrap_or(0),
+        };
+        let series = [view(0), view(1), view(2)];
+        let mut text = KVVec::with_capacity(HIST_RENDER_MAX, GFP_KERNEL)?;
+        text.resize(HIST_RENDER_MAX, 0, GFP_KERNEL)?;
+        let n = render_histograms(&series, &mut text).len;
+        text.truncate(n);
+        Ok(KBox::new(HistDevice { text }, GFP_KERNEL)?)
     }
 
     fn read_iter(mut kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {

@@ -10,6 +10,12 @@
 #  - linux-source-7.3 comes from trixie-backports, QEMU 10 from
 #    bookworm-backports. Suites beyond bookworm get Pin-Priority 100 so that
 #    only the packages named here come from them; nothing installed is upgraded.
+#
+#   scripts/setup-toolchain.sh            the build and test toolchain
+#   scripts/setup-toolchain.sh --bench    only the benchmark tools (rt-tests:
+#                                         cyclictest + hackbench, stress-ng,
+#                                         valgrind); the bench-*.sh scripts
+#                                         call it; CI does not need them
 set -euo pipefail
 
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
@@ -35,6 +41,30 @@ SUDO=""
 if [ "$(id -u)" != 0 ]; then SUDO=sudo; fi
 
 stamp="$HAP_CACHE/toolchain.stamp"
+
+# Benchmark tools, from bookworm itself; same dry-run guard as below.
+APT_PACKAGES_BENCH=(rt-tests stress-ng valgrind)
+if [ "${1:-}" = --bench ]; then
+  missing=()
+  for p in "${APT_PACKAGES_BENCH[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p")
+  done
+  if [ ${#missing[@]} -eq 0 ]; then
+    log "benchmark tools already installed (${APT_PACKAGES_BENCH[*]})"
+    exit 0
+  fi
+  log "apt: ${missing[*]} (benchmark tools)"
+  plan=$($SUDO apt-get -s -y --no-install-recommends install "${missing[@]}" 2>&1) ||
+    { $SUDO apt-get update -q -o Acquire::Retries=3 >/dev/null; plan=$($SUDO apt-get -s -y --no-install-recommends install "${missing[@]}"); }
+  if echo "$plan" | grep -E '^(Remv|Inst [^ ]+ \[)' >/dev/null; then
+    echo "$plan" | grep -E '^(Remv|Inst [^ ]+ \[)' >&2
+    die "apt would upgrade or remove installed packages (above); refusing"
+  fi
+  $SUDO apt-get install -y -q --no-install-recommends -o Acquire::Retries=3 "${missing[@]}" >/dev/null
+  exit 0
+elif [ $# -gt 0 ]; then
+  die "unknown argument $1 (usage: setup-toolchain.sh [--bench])"
+fi
 
 toolchain_ok() {
   [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$STAMP_VERSION" ] || return 1

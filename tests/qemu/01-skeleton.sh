@@ -34,10 +34,18 @@ fi
 check_not "a 9-byte write to /dev/hap_rtf_in is refused" sh -c 'printf 123456789 > /dev/hap_rtf_in'
 check_not "a 100-byte write is refused" dd if=/dev/zero of=/dev/hap_rtf_in bs=100 count=1
 expect "both refused writes were counted" "$(stat_value rtf_in.bad_length)" = 2
-for d in hap_rtf_in hap_rtf_out hap_stop hap_power hap_stats hap_effort hap_simlog hap_fault; do
+for d in hap_rtf_in hap_rtf_out hap_stop hap_power hap_stats hap_hist hap_effort hap_simlog hap_fault; do
   expect "/dev/$d is mode 0600" "$(stat -c %a /dev/$d 2>/dev/null)" = 600
 done
 expect "stats report the configured period" "$(stat_value period_us)" = $HAP_PERIOD_US
+# /dev/hap_hist: every wake-up sample is in a bucket or the overflow. The
+# histogram is read first: CLOCK keeps counting, so stats' count is >= it.
+cat /dev/hap_hist > /tmp/hist
+hist_total=$(awk -F': ' '/^wakeup\.hist_(us\.[0-9]+|overflow)/ { n += $2 } END { print n + 0 }' /tmp/hist)
+expect "/dev/hap_hist: wake-up buckets sum to hist_count" "$hist_total" = "$(awk -F': ' '/^wakeup\.hist_count/ { print $2 }' /tmp/hist)"
+expect "/dev/hap_hist: wake-up samples counted" "$hist_total" -gt 0
+expect "/dev/hap_hist: no more samples than /dev/hap_stats read later" "$hist_total" -le "$(stat_value wakeup.count)"
+expect "/dev/hap_hist: exec and jitter series present" "$(grep -c -E '^(exec|jitter)\.hist_count: [1-9]' /tmp/hist)" = 2
 expect "the controller runs" "$(stat_value state)" = running
 check "rmmod" rmmod hapticctrl
 check "dmesg has the unload line" dmesg_has 'hapticctrl: unloaded'

@@ -80,6 +80,11 @@ impl Histogram {
         self.buckets.get(i).copied().unwrap_or(0)
     }
 
+    /// All `HIST_BUCKETS` buckets (bucket `i`: values in [i, i+1) µs).
+    pub fn buckets(&self) -> &[u32] {
+        &self.buckets
+    }
+
     /// The `num/den` quantile in µs: the smallest bucket `v` such that at
     /// least ⌈count·num/den⌉ (≥ 1) values are ≤ `v`. Returns
     /// `HIST_BUCKETS` if that rank falls in the overflow, 0 when empty.
@@ -531,6 +536,88 @@ fn write_all(w: &mut SliceWriter<'_>, s: &StatsSummary) -> fmt::Result {
     writeln!(w, "jitter.signed_max_ns: {}", s.jitter_max_ns)
 }
 
+/// Names of the timing series of [`HapStats::histograms`], in that order.
+pub const HIST_SERIES: [&str; 3] = ["wakeup", "exec", "jitter"];
+
+/// A buffer big enough for [`render_histograms`] of [`HIST_SERIES`]: every
+/// bucket of every series non-zero, each line at most
+/// `"jitter.hist_us.999: 4294967295\n"` (31 bytes), plus headers.
+pub const HIST_RENDER_MAX: usize = HIST_SERIES.len() * (HIST_BUCKETS * 32 + 128) + 256;
+
+impl HapStats {
+    /// The histograms of the three series, named as in [`HIST_SERIES`]
+    /// (`jitter` is |actual − nominal period|).
+    pub fn histograms(&self) -> [(&'static str, &Histogram); 3] {
+        [
+            (HIST_SERIES[0], self.wakeup.histogram()),
+            (HIST_SERIES[1], self.exec.histogram()),
+            (HIST_SERIES[2], self.jitter.abs().histogram()),
+        ]
+    }
+}
+
+/// One series for [`render_histograms`]: its name, its `HIST_BUCKETS`
+/// buckets (copied out of [`HapStats`] under its lock) and its overflow.
+#[derive(Clone, Copy, Debug)]
+pub struct HistogramView<'a> {
+    pub name: &'a str,
+    pub buckets: &'a [u32],
+    pub overflow: u64,
+}
+
+fn write_histograms(w: &mut SliceWriter<'_>, series: &[HistogramView<'_>]) -> fmt::Result {
+    writeln!(
+        w,
+        "# hapticctrl histograms: <series>.hist_us.<i>: count of values in [i, i+1) us, non-zero buckets only; <series>.hist_overflow: values >= {HIST_BUCKETS} us"
+    )?;
+    writeln!(w, "version: {TEXT_VERSION}")?;
+    for s in series {
+        let mut total = s.overflow;
+        for (i, &n) in s.buckets.iter().enumerate() {
+            if n != 0 {
+                writeln!(w, "{}.hist_us.{i}: {n}", s.name)?;
+                total = total.saturating_add(u64::from(n));
+            }
+        }
+        writeln!(w, "{}.hist_overflow: {}", s.name, s.overflow)?;
+        writeln!(w, "{}.hist_count: {total}", s.name)?;
+    }
+    Ok(())
+}
+
+/// Render histograms as `key: value` lines (`/dev/hap_hist`; cyclictest's
+/// `-h` histogram in the stats device's shape). `HIST_RENDER_MAX` bytes
+/// always fit the three series of [`HapStats`].
+pub fn render_histograms(series: &[HistogramView<'_>], out: &mut [u8]) -> Rendered {
+    let mut w = SliceWriter::new(out);
+    let _ = write_histograms(&mut w, series);
+    Rendered {
+        len: w.len(),
+        truncated: w.truncated(),
+    }
+}
+
+/// The non-zero buckets `(µs, count)` of `series` in a [`render_histograms`]
+/// text, in text order, plus its overflow as `(HIST_BUCKETS, overflow)` when
+/// non-zero. Lines that are not of that series or do not parse are skipped.
+pub fn histogram_entries<'a>(
+    text: &'a str,
+    series: &'a str,
+) -> impl Iterator<Item = (u32, u64)> + 'a {
+    key_values(text).filter_map(move |(k, v)| {
+        let rest = k.strip_prefix(series)?;
+        let n = v.parse::<u64>().ok()?;
+        if let Some(us) = rest.strip_prefix(".hist_us.") {
+            let us = us.parse::<u32>().ok()?;
+            (us < HIST_BUCKETS as u32).then_some((us, n))
+        } else if rest == ".hist_overflow" && n != 0 {
+            Some((HIST_BUCKETS as u32, n))
+        } else {
+            None
+        }
+    })
+}
+
 /// Render `s` as `key: value` lines (≈1.4 KB; `RENDER_MAX` always fits).
 pub fn render_summary(s: &StatsSummary, out: &mut [u8]) -> Rendered {
     let mut w = SliceWriter::new(out);
@@ -679,6 +766,68 @@ pub fn parse_summary(text: &str) -> Result<StatsSummary, ParseError> {
 mod tests {
     use super::super::clock::{FailSafeCause, Mode};
     use super::*;
+
+    fn views(st: &HapStats) -> Vec<HistogramView<'_>> {
+        st.histograms()
+            .iter()
+            .map(|(name, h)| HistogramView {
+                name,
+                buckets: h.buckets(),
+                overflow: h.overflow(),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn histograms_render_and_parse_back_bucket_for_bucket() {
+        let mut st = HapStats::new(1000);
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut expect: [std::collections::BTreeMap<u32, u64>; 3] = Default::default();
+        for _ in 0..20_000 {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            let ns = seed % 1_200_000; // ~1/6 in the overflow
+            st.wakeup.record_ns(ns);
+            st.exec.record_ns(ns / 3);
+            let us = (ns / 1000).min(HIST_BUCKETS as u64) as u32;
+            *expect[0].entry(us).or_default() += 1;
+            *expect[1].entry((ns / 3 / 1000) as u32).or_default() += 1;
+        }
+        let mut buf = vec![0u8; HIST_RENDER_MAX];
+        let r = render_histograms(&views(&st), &mut buf);
+        assert!(!r.truncated);
+        let text = core::str::from_utf8(&buf[..r.len]).unwrap();
+        for (i, name) in HIST_SERIES.iter().enumerate() {
+            let got: std::collections::BTreeMap<u32, u64> = histogram_entries(text, name).collect();
+            assert_eq!(got, expect[i], "{name}");
+            let count: u64 = key_values(text)
+                .find(|(k, _)| *k == format!("{name}.hist_count"))
+                .map(|(_, v)| v.parse().unwrap())
+                .unwrap();
+            assert_eq!(count, expect[i].values().sum::<u64>(), "{name} count");
+        }
+        // "exec" must not pick up "exec2"-like prefixes nor other series.
+        assert!(histogram_entries(text, "exe").next().is_none());
+    }
+
+    #[test]
+    fn histograms_worst_case_fits_hist_render_max() {
+        let full = [u32::MAX; HIST_BUCKETS];
+        let series: Vec<HistogramView<'_>> = HIST_SERIES
+            .iter()
+            .map(|name| HistogramView {
+                name,
+                buckets: &full,
+                overflow: u64::MAX,
+            })
+            .collect();
+        let mut buf = vec![0u8; HIST_RENDER_MAX];
+        let r = render_histograms(&series, &mut buf);
+        assert!(!r.truncated, "{} bytes", r.len);
+        let mut small = vec![0u8; r.len - 1];
+        assert!(render_histograms(&series, &mut small).truncated);
+    }
 
     fn reference_quantile(sorted_us: &[u64], num: u64, den: u64) -> u64 {
         let n = sorted_us.len() as u64;
