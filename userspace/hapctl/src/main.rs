@@ -9,6 +9,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 #[cfg(feature = "analyze")]
 mod analyze;
 mod kv;
+#[cfg(feature = "analyze")]
+mod plot;
 mod simlog;
 
 /// Control the hapticctrl haptic controller.
@@ -79,6 +81,38 @@ enum Cmd {
         #[arg(long)]
         stats: Option<PathBuf>,
     },
+    /// Charts (PNG and SVG) from CSV files, for the benchmark scripts.
+    #[cfg(feature = "analyze")]
+    Plot {
+        /// hist: `value,count` buckets drawn as steps; lines: `x,y` series.
+        #[arg(value_enum)]
+        kind: PlotKind,
+        /// Output path without extension (writes OUT.png and OUT.svg).
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value = "")]
+        title: String,
+        #[arg(long, default_value = "")]
+        x_label: String,
+        #[arg(long, default_value = "")]
+        y_label: String,
+        /// Logarithmic y axis.
+        #[arg(long)]
+        log_y: bool,
+        /// Right end of the x axis (default: the data's).
+        #[arg(long)]
+        x_max: Option<f64>,
+        /// One or more NAME=FILE.csv (the legend's name, the data).
+        #[arg(required = true)]
+        series: Vec<String>,
+    },
+}
+
+#[cfg(feature = "analyze")]
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum PlotKind {
+    Hist,
+    Lines,
 }
 
 #[derive(Subcommand, Debug)]
@@ -208,6 +242,38 @@ fn run(cli: Cli) -> Result<(), String> {
         Cmd::Log { out, cycles } => simlog::capture(&dev(d, "hap_simlog"), out.as_deref(), cycles),
         #[cfg(feature = "analyze")]
         Cmd::Analyze { log, out, stats } => analyze::run(&log, &out, stats.as_deref()),
+        #[cfg(feature = "analyze")]
+        Cmd::Plot {
+            kind,
+            out,
+            title,
+            x_label,
+            y_label,
+            log_y,
+            x_max,
+            series,
+        } => {
+            let series = series
+                .iter()
+                .map(|a| plot::load_series(a))
+                .collect::<Result<Vec<_>, _>>()?;
+            let spec = plot::Spec {
+                kind: match kind {
+                    PlotKind::Hist => plot::Kind::Hist,
+                    PlotKind::Lines => plot::Kind::Lines,
+                },
+                title: &title,
+                x_label: &x_label,
+                y_label: &y_label,
+                log_y,
+                x_max,
+                series: &series,
+            };
+            for f in plot::run(&out, &spec)? {
+                println!("{}", f.display());
+            }
+            Ok(())
+        }
     }
 }
 
