@@ -2,12 +2,17 @@
 # In-guest real-time benchmark (scripts/bench-rt.sh boots it; not part of the
 # test suite). Args: CYCLES [cyclictest].
 # Phase "idle": insmod, N servo cycles with nothing else running, stats dump.
-# Phase "load": insmod again, N cycles under a busybox userspace load (busy
-# loops, dd, fork storm, all nice 0), stats dump, load killed.
+# Phase "load": insmod again, N cycles under a heavy userspace load, all
+# SCHED_OTHER nice 0: stress-ng (cpu, vm, io, hdd stressors) and a hackbench
+# loop (scheduler/IPC load) when the host script added them, else busybox
+# busy loops, dd and a fork storm; stats dump, load killed.
 # With "cyclictest" (binary + libs added by the host script), cyclictest runs
-# at the same period and SCHED_FIFO 80 next to the module in each phase.
-# Dumps are between "BENCH-BEGIN <phase>" / "BENCH-END <phase>" markers; the
-# host script parses them. Figures only, no assertions on timing.
+# at the same period and SCHED_FIFO 80 next to the module in each phase, with
+# a 1 us histogram like /dev/hap_hist's.
+# Dumps are between "BENCH-BEGIN <phase>" / "BENCH-END <phase>" markers
+# (stats, cyclictest summary) and "HIST-BEGIN <phase>" / "HIST-END <phase>"
+# (/dev/hap_hist, cyclictest's histogram as "cthist: US COUNT"); the host
+# script parses them. Figures only, no assertions on timing.
 . /tests/lib.sh
 # cyclictest wants POSIX shared memory.
 mkdir -p /dev/shm && mount -t tmpfs shm /dev/shm 2>/dev/null
@@ -17,18 +22,34 @@ echo "# bench: mode $HAP_MODE, period $HAP_PERIOD_US us, $N cycles per phase"
 
 start_load() {
   LOAD_PIDS=""
-  for i in 1 2 3; do
-    sh -c 'while :; do :; done' & LOAD_PIDS="$LOAD_PIDS $!"
-  done
-  dd if=/dev/zero of=/dev/null bs=1M 2>/dev/null & LOAD_PIDS="$LOAD_PIDS $!"
-  sh -c 'while :; do /bin/true; done' & LOAD_PIDS="$LOAD_PIDS $!"
-  echo "# load started: pids$LOAD_PIDS"
+  if command -v stress-ng >/dev/null && command -v hackbench >/dev/null; then
+    LOAD_KIND="stress-ng --cpu 2 --vm 1 --vm-bytes 64M --io 1 --hdd 1 --hdd-bytes 8M + hackbench -g 4 -l 200 loop"
+    mkdir -p /tmp/stress
+    stress-ng --cpu 2 --vm 1 --vm-bytes 64M --io 1 --hdd 1 --hdd-bytes 8M \
+      --temp-path /tmp/stress --timeout 0 > /tmp/stress.out 2>&1 & LOAD_PIDS="$LOAD_PIDS $!"
+    sh -c 'while :; do hackbench -g 4 -l 200 -s 100 > /dev/null 2>&1 || exit 1; done' & LOAD_PIDS="$LOAD_PIDS $!"
+  else
+    LOAD_KIND="busybox: 3 sh busy loops, dd /dev/zero->/dev/null, fork storm"
+    for i in 1 2 3; do
+      sh -c 'while :; do :; done' & LOAD_PIDS="$LOAD_PIDS $!"
+    done
+    dd if=/dev/zero of=/dev/null bs=1M 2>/dev/null & LOAD_PIDS="$LOAD_PIDS $!"
+    sh -c 'while :; do /bin/true; done' & LOAD_PIDS="$LOAD_PIDS $!"
+  fi
+  echo "# load started ($LOAD_KIND): pids$LOAD_PIDS"
 }
 stop_load() {
+  # stress-ng's workers are its children: SIGINT lets it reap them and print
+  # its summary. Then the hackbench loop.
+  # shellcheck disable=SC2086
+  kill -INT $LOAD_PIDS 2>/dev/null
+  sleep 2
   # shellcheck disable=SC2086
   kill $LOAD_PIDS 2>/dev/null
   wait $LOAD_PIDS 2>/dev/null
+  killall -q stress-ng hackbench 2>/dev/null
   echo "# load stopped"
+  [ -s /tmp/stress.out ] && sed 's/^/# stress-ng: /' /tmp/stress.out | tail -15
 }
 
 # cpu_sample: "total idle" jiffies from /proc/stat (to show the load ran).
@@ -44,7 +65,7 @@ phase() {
   [ "$name" = load ] && start_load
   ctpid=""
   if [ -n "$CT" ]; then
-    cyclictest -m -p 80 -i "$HAP_PERIOD_US" -l "$N" -q > /tmp/ct.$name 2>&1 &
+    cyclictest -m -p 80 -i "$HAP_PERIOD_US" -l "$N" -q -h 1000 --histfile=/tmp/cth.$name > /tmp/ct.$name 2>&1 &
     ctpid=$!
   fi
   t0=$(now_ms)
@@ -58,6 +79,7 @@ phase() {
   s1=$(cpu_sample)
   # Snapshot at once (the stats keep counting while the shell works).
   cat /dev/hap_stats > /tmp/stats.$name
+  cat /dev/hap_hist > /tmp/hist.$name
   [ -n "$ctpid" ] && wait "$ctpid"
   [ "$name" = load ] && stop_load
   echo "BENCH-BEGIN $name"
@@ -66,11 +88,18 @@ phase() {
   set -- $s0 $s1
   [ "$3" -gt "$1" ] && echo "cpu_busy_pct: $(( 100 - 100 * ($4 - $2) / ($3 - $1) ))"
   echo "loadavg: $(cut -d' ' -f1-3 /proc/loadavg)"
+  [ "$name" = load ] && echo "load_kind: $LOAD_KIND"
   cat /tmp/stats.$name
   if [ -n "$CT" ]; then
     sed 's/^/cyclictest: /' /tmp/ct.$name
+    grep '^#' /tmp/cth.$name | sed 's/^/cyclictest: /'
   fi
   echo "BENCH-END $name"
+  echo "HIST-BEGIN $name"
+  grep -v '^#' /tmp/hist.$name
+  # cyclictest's histogram, non-zero buckets only.
+  [ -n "$CT" ] && awk '!/^#/ && $2 + 0 > 0 { print "cthist: " $1 + 0 " " $2 + 0 }' /tmp/cth.$name
+  echo "HIST-END $name"
   check "$name: rmmod" rmmod hapticctrl
 }
 
