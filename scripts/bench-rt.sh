@@ -50,29 +50,16 @@ mkdir -p "$dir"
 log="$dir/guest.log"
 report="$dir/report.txt"
 
-# A host binary and the dynamic libraries and loader ldd lists, at their own
-# paths in the initramfs (Debian's rt-tests and stress-ng are dynamic).
-extras=()
-declare -A seen=()
-add_binary() {
-  local bin=$1 lib
-  extras+=(--extra "$bin:/usr/bin/$(basename "$bin")")
-  while read -r lib; do
-    [ -n "${seen[$lib]:-}" ] && continue
-    seen[$lib]=1
-    extras+=(--extra "$lib:$lib")
-  done < <(ldd "$bin" | sed -n -e 's/.*=> \(\/[^ ]*\) .*/\1/p' -e 's/^[[:space:]]*\(\/[^ ]*\) .*/\1/p')
-}
+# shellcheck source=scripts/lib.sh
+. "$HERE/lib.sh"
+HAP_EXTRAS=()
 ct_arg=""
 if [ "$use_ct" = 1 ]; then
-  if ct=$(command -v cyclictest); then add_binary "$ct"; ct_arg=cyclictest
-  else echo "bench-rt: cyclictest not found; running without the anchor" >&2; fi
+  if hap_add_binaries cyclictest; then ct_arg=cyclictest
+  else echo "bench-rt: running without the cyclictest anchor" >&2; fi
 fi
 if [ "$busybox_load" = 0 ]; then
-  for b in stress-ng hackbench; do
-    if p=$(command -v "$b"); then add_binary "$p"
-    else echo "bench-rt: $b not found; the load falls back to busybox tools" >&2; fi
-  done
+  hap_add_binaries stress-ng hackbench || echo "bench-rt: the load falls back to busybox tools" >&2
 fi
 
 [ -f "$ROOT/build/base/module/hapticctrl.ko" ] || make -C "$ROOT"
@@ -83,7 +70,7 @@ hapctl="$ROOT/userspace/target/release/hapctl"
 timeout_s=$(( 300 + cycles * period_us * 2 / 1000000 * 10 ))
 t0=$(date +%s)
 "$HERE/qemu-run.sh" --icount --period-us "$period_us" --timeout "$timeout_s" --log "$log" \
-  "${extras[@]+"${extras[@]}"}" "$ROOT/tests/bench/rt-guest.sh" "$cycles" $ct_arg
+  "${HAP_EXTRAS[@]+"${HAP_EXTRAS[@]}"}" "$ROOT/tests/bench/rt-guest.sh" "$cycles" $ct_arg
 t1=$(date +%s)
 
 python3 "$HERE/bench-rt-report.py" "$log" "$dir" "$cycles" "$period_us" "$((t1 - t0))" > "$report"

@@ -27,3 +27,28 @@ hap_kernel_dir() {
   hash=$(cat "${frags[@]}" | sha256sum | cut -c1-12)
   echo "$HAP_CACHE/kernel/${srcver//[^A-Za-z0-9.+-]/_}-${variant:-base}-$hash"
 }
+
+# hap_add_binaries BIN...: append to the array HAP_EXTRAS the qemu-run.sh
+# "--extra SRC:DST" arguments that put each host binary (found in PATH) at
+# /usr/bin/NAME in the guest, with the dynamic libraries and loader ldd lists
+# at their own paths (Debian's rt-tests and stress-ng are dynamic). Missing
+# binaries are skipped with a message; returns 1 if any was missing.
+hap_add_binaries() {
+  local b bin lib rc=0
+  declare -gA HAP_EXTRAS_SEEN
+  declare -ga HAP_EXTRAS
+  for b in "$@"; do
+    if ! bin=$(command -v "$b"); then
+      log "$b not found in PATH: not added to the guest"
+      rc=1
+      continue
+    fi
+    HAP_EXTRAS+=(--extra "$bin:/usr/bin/$(basename "$bin")")
+    while read -r lib; do
+      [ -n "${HAP_EXTRAS_SEEN[$lib]:-}" ] && continue
+      HAP_EXTRAS_SEEN[$lib]=1
+      HAP_EXTRAS+=(--extra "$lib:$lib")
+    done < <(ldd "$bin" | sed -n -e 's/.*=> \(\/[^ ]*\) .*/\1/p' -e 's/^[[:space:]]*\(\/[^ ]*\) .*/\1/p')
+  done
+  return $rc
+}

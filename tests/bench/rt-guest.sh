@@ -20,38 +20,6 @@ N=${1:-100000}
 CT=${2:-}
 echo "# bench: mode $HAP_MODE, period $HAP_PERIOD_US us, $N cycles per phase"
 
-start_load() {
-  LOAD_PIDS=""
-  if command -v stress-ng >/dev/null && command -v hackbench >/dev/null; then
-    LOAD_KIND="stress-ng --cpu 2 --vm 1 --vm-bytes 64M --io 1 --hdd 1 --hdd-bytes 8M + hackbench -g 4 -l 200 loop"
-    mkdir -p /tmp/stress
-    stress-ng --cpu 2 --vm 1 --vm-bytes 64M --io 1 --hdd 1 --hdd-bytes 8M \
-      --temp-path /tmp/stress --timeout 0 > /tmp/stress.out 2>&1 & LOAD_PIDS="$LOAD_PIDS $!"
-    sh -c 'while :; do hackbench -g 4 -l 200 -s 100 > /dev/null 2>&1 || exit 1; done' & LOAD_PIDS="$LOAD_PIDS $!"
-  else
-    LOAD_KIND="busybox: 3 sh busy loops, dd /dev/zero->/dev/null, fork storm"
-    for i in 1 2 3; do
-      sh -c 'while :; do :; done' & LOAD_PIDS="$LOAD_PIDS $!"
-    done
-    dd if=/dev/zero of=/dev/null bs=1M 2>/dev/null & LOAD_PIDS="$LOAD_PIDS $!"
-    sh -c 'while :; do /bin/true; done' & LOAD_PIDS="$LOAD_PIDS $!"
-  fi
-  echo "# load started ($LOAD_KIND): pids$LOAD_PIDS"
-}
-stop_load() {
-  # stress-ng's workers are its children: SIGINT lets it reap them and print
-  # its summary. Then the hackbench loop.
-  # shellcheck disable=SC2086
-  kill -INT $LOAD_PIDS 2>/dev/null
-  sleep 2
-  # shellcheck disable=SC2086
-  kill $LOAD_PIDS 2>/dev/null
-  wait $LOAD_PIDS 2>/dev/null
-  killall -q stress-ng hackbench 2>/dev/null
-  echo "# load stopped"
-  [ -s /tmp/stress.out ] && sed 's/^/# stress-ng: /' /tmp/stress.out | tail -15
-}
-
 # cpu_sample: "total idle" jiffies from /proc/stat (to show the load ran).
 cpu_sample() {
   # shellcheck disable=SC2046

@@ -30,3 +30,40 @@ stat_value() { sed -n "s/^$1: *\([^ ]*\).*/\1/p" /dev/hap_stats | head -1; }
 dmesg_has() { dmesg | grep -q -E "$1"; }
 # Guest time in ms (monotonic, from /proc/uptime).
 now_ms() { awk '{ printf "%d\n", $1 * 1000 }' /proc/uptime; }
+
+# Benchmark load (tests/bench/*, scripts/bench-rt.sh, scripts/soak.sh), all
+# SCHED_OTHER nice 0: stress-ng (cpu, vm, io, hdd) and a hackbench loop when
+# the host script added them to the initramfs, else busybox busy loops, dd
+# and a fork storm. start_load sets LOAD_KIND and LOAD_PIDS; stop_load ends it.
+start_load() {
+  LOAD_PIDS=""
+  if command -v stress-ng >/dev/null && command -v hackbench >/dev/null; then
+    LOAD_KIND="stress-ng --cpu 2 --vm 1 --vm-bytes 64M --io 1 --hdd 1 --hdd-bytes 8M + hackbench -g 4 -l 200 loop"
+    mkdir -p /tmp/stress
+    stress-ng --cpu 2 --vm 1 --vm-bytes 64M --io 1 --hdd 1 --hdd-bytes 8M \
+      --temp-path /tmp/stress --timeout 0 > /tmp/stress.out 2>&1 & LOAD_PIDS="$LOAD_PIDS $!"
+    sh -c 'while :; do hackbench -g 4 -l 200 -s 100 > /dev/null 2>&1 || exit 1; done' & LOAD_PIDS="$LOAD_PIDS $!"
+  else
+    LOAD_KIND="busybox: 3 sh busy loops, dd /dev/zero->/dev/null, fork storm"
+    for i in 1 2 3; do
+      sh -c 'while :; do :; done' & LOAD_PIDS="$LOAD_PIDS $!"
+    done
+    dd if=/dev/zero of=/dev/null bs=1M 2>/dev/null & LOAD_PIDS="$LOAD_PIDS $!"
+    sh -c 'while :; do /bin/true; done' & LOAD_PIDS="$LOAD_PIDS $!"
+  fi
+  echo "# load started ($LOAD_KIND): pids$LOAD_PIDS"
+}
+stop_load() {
+  # stress-ng's workers are its children: SIGINT lets it reap them and print
+  # its summary. Then the hackbench loop.
+  # shellcheck disable=SC2086
+  kill -INT $LOAD_PIDS 2>/dev/null
+  sleep 2
+  # shellcheck disable=SC2086
+  kill $LOAD_PIDS 2>/dev/null
+  wait $LOAD_PIDS 2>/dev/null
+  killall -q stress-ng hackbench 2>/dev/null
+  echo "# load stopped"
+  [ -s /tmp/stress.out ] && sed 's/^/# stress-ng: /' /tmp/stress.out | tail -15
+}
+
