@@ -12,6 +12,10 @@ HAP_LLVM=-22
 HAP_RUSTC=/usr/bin/rustc
 export PATH="$HAP_TOOLS/bin:$PATH"
 
+# What counts as a kernel problem in a guest log (grep -E): panics, oopses,
+# warnings, lockdep and atomic-sleep splats, sanitizers, Rust panics.
+HAP_SPLAT_RE='Kernel panic|Oops|WARNING:|BUG:|Call Trace|possible (circular|recursive) locking|sleeping function called from invalid context|general protection fault|KASAN|UBSAN|rust_panic|panicked at'
+
 log() { printf '[hapticctrl %s] %s\n' "$(date +%H:%M:%S)" "$*" >&2; }
 die() { printf '[hapticctrl] error: %s\n' "$*" >&2; exit 1; }
 

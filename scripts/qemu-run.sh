@@ -113,7 +113,7 @@ qrc=${PIPESTATUS[0]}
 set -e
 elapsed=$(( $(date +%s) - start ))
 rc=$(sed -n 's/.*HAPTEST-RESULT rc=\([0-9]*\).*/\1/p' "$log" | tail -1)
-problems=$(grep -n -E 'Kernel panic|Oops|WARNING:|BUG:|Call Trace|possible (circular|recursive) locking|sleeping function called from invalid context|general protection fault|KASAN|UBSAN|rust_panic|panicked at' "$log" || true)
+problems=$(grep -n -E "$HAP_SPLAT_RE" "$log" || true)
 if [ "$qrc" = 124 ] || [ "$qrc" = 137 ]; then
   echo "qemu-run: $name TIMED OUT after ${timeout_s}s (accel=$mode). Last lines of $log:" >&2
   tail -40 "$log" >&2; exit 1

@@ -81,7 +81,7 @@ check_num "module: nothing malformed reached it" "$(gv hap_stats.txt frames_reje
 check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
 echo "# module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses) (emulation noise), max consecutive $(gv hap_stats.txt max_consecutive_misses), answers sent $(gv hap_stats.txt answers_sent)"
 check_num "simulator log captured (records)" "$(( $(stat -c %s "$results/simlog.bin" 2>/dev/null || echo 0) / 288 ))" '>=' 100
-problems=$(grep -E 'Kernel panic|Oops|WARNING:|BUG:|Call Trace|possible (circular|recursive) locking|sleeping function called' "$qlog" || true)
+problems=$(grep -E "$HAP_SPLAT_RE" "$qlog" || true)
 [ -z "$problems" ] && ok "no kernel warning in the guest log" || nok "kernel problems: $problems"
 grep -q 'HAPTEST-RESULT rc=0' "$qlog" && ok "guest side passed (launch script start/stop)" || nok "guest side failed: $(grep -E 'not ok|HAPTEST-RESULT' "$qlog" | head -5)"
 echo "e2e: $pass passed, $fail failed"

@@ -76,6 +76,31 @@ impl Shared {
 }
 
 /// Write the stats file atomically (temp file + rename).
+/// Run the calling process's threads (this one and those it starts later,
+/// which inherit it) under `SCHED_FIFO` at `priority` (1..=99), below the
+/// module's kernel tasks (SERVO 80, CLOCK 99) when `priority` < 80: under a
+/// heavy userspace load a SCHED_OTHER bridge only gets its fair share of the
+/// CPU and the link's latency grows with the load. Needs CAP_SYS_NICE.
+pub fn set_fifo_priority(priority: i32) -> std::io::Result<()> {
+    if !(1..=99).contains(&priority) {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("SCHED_FIFO priority {priority} is outside 1..=99"),
+        ));
+    }
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: `param` is a valid, initialised sched_param that outlives the
+    // call; pid 0 is the calling thread.
+    let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
+
 pub fn write_stats_file(path: &Path, text: &str) -> std::io::Result<()> {
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".tmp");
@@ -342,6 +367,17 @@ fn client_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
                 shared.set_fatal(format!("{}: {e}", cfg.rtf_out.display()));
                 return;
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod fifo_tests {
+    #[test]
+    fn out_of_range_priority_is_refused_without_a_syscall() {
+        for p in [0, 100, -1] {
+            let e = super::set_fifo_priority(p).unwrap_err();
+            assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput, "{p}");
         }
     }
 }

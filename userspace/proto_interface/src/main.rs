@@ -40,6 +40,10 @@ struct Args {
     /// Print the bound address on stdout once listening (for scripts and tests).
     #[arg(long)]
     print_addr: bool,
+    /// Run the bridge's threads under SCHED_FIFO at this priority (1..=99;
+    /// below SERVO's 80). Default: SCHED_OTHER. Fails if not permitted.
+    #[arg(long, value_parser = clap::value_parser!(i32).range(1..=99))]
+    rt_priority: Option<i32>,
 }
 
 fn main() -> ExitCode {
@@ -57,6 +61,13 @@ fn main() -> ExitCode {
         stats_interval: Duration::from_secs(1),
     };
 
+    if let Some(p) = args.rt_priority {
+        // Before any thread is started: they inherit the policy.
+        if let Err(e) = proto_interface::set_fifo_priority(p) {
+            eprintln!("proto_interface: cannot run at SCHED_FIFO {p}: {e}");
+            return ExitCode::FAILURE;
+        }
+    }
     let mut signals = match Signals::new([SIGTERM, SIGINT, SIGUSR1]) {
         Ok(s) => s,
         Err(e) => {

@@ -330,6 +330,9 @@ fn bad_command_line_is_refused() {
         &["--port", "70000"][..],
         &["--bind", "nowhere"],
         &["--session-timeout-ms", "0"],
+        &["--rt-priority", "0"],
+        &["--rt-priority", "100"],
+        &["--rt-priority", "high"],
         &["--bogus"],
     ] {
         let o = Command::new(env!("CARGO_BIN_EXE_proto_interface"))
