@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Host-side, repeatable cost of one SERVO cycle (issue 6, first slice):
-#   scripts/bench-step.sh [--no-rt] [--rt-seconds S] [--period-us P]
+#   scripts/bench-step.sh [--no-rt] [--rt-seconds S] [--period-us P] [--load]
 # (a) callgrind: instructions per full cycle (hap_core::cycle::ServoCycle +
 #     answer encoding + log record), = (Ir(K=2000) - Ir(K=1000)) / 1000 with
 #     the servo_steps example, so setup and process start cancel. Mode:
@@ -11,26 +11,35 @@
 #     clock_nanosleep, `chrt -f 80`) for S seconds (default 10) at period P
 #     (default 1000 us), with cyclictest -m -p 80 running at the same time
 #     (rt-tests). Mode: host native, this machine's (virtualised, non-RT)
-#     kernel: a real-kernel comparison, not the target's figures.
+#     kernel: a real-kernel comparison, not the target's figures. With
+#     --load, stress-ng (cpu, vm, io, hdd) and a hackbench loop run on the
+#     host meanwhile. Histograms of both go to CSV and a plot (hapctl plot).
 # Run it on an otherwise idle host (not next to a QEMU guest).
 set -euo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
 ROOT=$(cd "$HERE/.." && pwd)
-rt=1; rt_s=10; period_us=1000; out="$ROOT/build/bench"
+rt=1; rt_s=10; period_us=1000; load=0; out="$ROOT/build/bench"
 while [ $# -gt 0 ]; do
   case "$1" in
     --no-rt) rt=0 ;;
     --rt-seconds) rt_s=$2; shift ;;
     --period-us) period_us=$2; shift ;;
+    --load) load=1 ;;
     -h|--help) awk 'NR > 1 && /^#/ { print; next } NR > 1 { exit }' "$0"; exit 0 ;;
     *) echo "bench-step: unknown option $1" >&2; exit 2 ;;
   esac
   shift
 done
-mkdir -p "$out"
-report="$out/step-$(date -u +%Y%m%dT%H%M%SZ).txt"
+for v in "$rt_s" "$period_us"; do
+  case "$v" in ''|*[!0-9]*|0) echo "bench-step: '$v' is not a positive integer" >&2; exit 2 ;; esac
+done
+bash "$HERE/setup-toolchain.sh" --bench
+stamp=$(date -u +%Y%m%dT%H%M%SZ)
+mkdir -p "$out/step-$stamp"
+report="$out/step-$stamp/report.txt"
 cd "$ROOT/userspace"
 cargo build --release -q -p hap-core --example servo_steps
+cargo build --release -q -p hapctl
 bin="$ROOT/userspace/target/release/examples/servo_steps"
 {
 echo "# hapticctrl bench-step on $(uname -r), $(nproc) CPU(s), $(date -u +%FT%TZ)"
@@ -38,36 +47,55 @@ echo "## (a) host native, callgrind instruction count"
 if command -v valgrind >/dev/null; then
   declare -A ir
   for k in 1000 2000; do
-    valgrind --tool=callgrind --callgrind-out-file="$out/callgrind.servo_steps.$k" "$bin" "$k" \
-      > /dev/null 2> "$out/callgrind.$k.err"
-    ir[$k]=$(sed -n 's/.*Collected : \([0-9]*\).*/\1/p' "$out/callgrind.$k.err")
+    valgrind --tool=callgrind --callgrind-out-file="$out/step-$stamp/callgrind.servo_steps.$k" "$bin" "$k" \
+      > /dev/null 2> "$out/step-$stamp/callgrind.$k.err"
+    ir[$k]=$(sed -n 's/.*Collected : \([0-9]*\).*/\1/p' "$out/step-$stamp/callgrind.$k.err")
   done
   echo "Ir(K=1000) = ${ir[1000]}, Ir(K=2000) = ${ir[2000]}"
   echo "instructions per servo cycle [host native, callgrind]: $(( (ir[2000] - ir[1000]) / 1000 ))"
-  echo "(callgrind_annotate $out/callgrind.servo_steps.2000 | head -40 for the per-function split)"
+  echo "(callgrind_annotate $out/step-$stamp/callgrind.servo_steps.2000 | head -40 for the per-function split)"
 else
   echo "valgrind not installed (apt-get install -y valgrind): skipped"
 fi
 echo "## (b) host native, wall clock: cargo bench -p hap-core --bench servo_step"
 cargo bench -q -p hap-core --bench servo_step 2>/dev/null | grep 'ns/step' | sed 's/^/[host native] /'
 if [ "$rt" = 1 ]; then
-  echo "## (c) host native, SCHED_FIFO 80, ${rt_s} s at ${period_us} us, next to cyclictest"
+  echo "## (c) host native, SCHED_FIFO 80, ${rt_s} s at ${period_us} us, next to cyclictest$([ "$load" = 1 ] && echo ", host loaded: stress-ng --cpu 2 --vm 1 --vm-bytes 256M --io 1 --hdd 1 + hackbench loop")"
   if ! command -v cyclictest >/dev/null; then
     echo "cyclictest not installed (apt-get install -y rt-tests): loop alone"
   fi
   if chrt -f 80 true 2>/dev/null; then
     loops=$(( rt_s * 1000000 / period_us ))
     ct_out=$(mktemp)
+    lpids=""
+    if [ "$load" = 1 ]; then
+      stress-ng --cpu 2 --vm 1 --vm-bytes 256M --io 1 --hdd 1 --hdd-bytes 64M --temp-path /tmp \
+        --timeout $((rt_s + 5)) > /dev/null 2>&1 & lpids="$!"
+      (end=$(( $(date +%s) + rt_s + 5 )); while [ "$(date +%s)" -lt "$end" ]; do hackbench -g 4 -l 200 -s 100 > /dev/null 2>&1 || break; done) &
+      lpids="$lpids $!"
+      sleep 1
+    fi
+    hdir="$out/step-$stamp"
     if command -v cyclictest >/dev/null; then
-      cyclictest -m -p 80 -i "$period_us" -l "$loops" -q > "$ct_out" 2>&1 &
+      cyclictest -m -p 80 -i "$period_us" -l "$loops" -q -h 20000 --histfile="$hdir/cyclictest.hist" > "$ct_out" 2>&1 &
       ctpid=$!
     fi
-    chrt -f 80 "$bin" rt "$rt_s" "$period_us" | sed 's/^/[host native SCHED_FIFO] /'
+    chrt -f 80 "$bin" rt "$rt_s" "$period_us" "$hdir" | sed 's/^/[host native SCHED_FIFO] /'
     if [ -n "${ctpid:-}" ]; then
       wait "$ctpid" || true
-      grep '^T:' "$ct_out" | sed 's/^/[host native cyclictest] /'
+      sed -n 's/^# \(Min\|Avg\|Max\) Latencies: 0*\([0-9]\)/\1 \2/p' "$hdir/cyclictest.hist" | tr '\n' ' ' |
+        sed 's/^/[host native cyclictest] latency us: /'; echo
+      awk 'BEGIN { print "us,count" } !/^#/ && $2 + 0 > 0 { print $1 + 0 "," $2 + 0 }' "$hdir/cyclictest.hist" > "$hdir/cyclictest.csv"
     fi
+    # shellcheck disable=SC2086
+    [ -n "$lpids" ] && { kill $lpids 2>/dev/null; wait $lpids 2>/dev/null; true; }
     rm -f "$ct_out"
+    "$ROOT/userspace/target/release/hapctl" plot hist --log-y --out "$hdir/host_latency" \
+      --title "Host native, SCHED_FIFO 80, $period_us µs$([ "$load" = 1 ] && echo ", loaded")" \
+      --x-label "µs (1 µs buckets)" --y-label "cycles (log)" \
+      "servo loop wake-up=$hdir/host_loop_wakeup.csv" "servo loop cycle time=$hdir/host_loop_cycle.csv" \
+      $([ -s "$hdir/cyclictest.csv" ] && echo "cyclictest=$hdir/cyclictest.csv") > /dev/null &&
+      echo "plot: $hdir/host_latency.png / .svg"
   else
     echo "chrt -f 80 not permitted here: skipped"
   fi

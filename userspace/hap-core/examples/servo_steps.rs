@@ -8,7 +8,8 @@
 //! * `servo_steps rt SECONDS PERIOD_US` runs the same cycle in a periodic
 //!   loop (absolute `clock_nanosleep` on CLOCK_MONOTONIC) and prints the
 //!   wake-up latency and the cycle time, like cyclictest. Start it under
-//!   `chrt -f 80` for a SCHED_FIFO figure.
+//!   `chrt -f 80` for a SCHED_FIFO figure. `servo_steps rt S P DIR` also
+//!   writes the 1 µs histograms `DIR/host_loop_{wakeup,cycle}.csv`.
 
 use hap_core::config::{CommandType, ServoConfig};
 use hap_core::cycle::ServoCycle;
@@ -167,7 +168,20 @@ fn summary(v: &mut [i64]) -> String {
     )
 }
 
-fn rt_loop(seconds: u32, period_us: u32) {
+/// `us,count` lines of a 1 µs histogram of `v` (ns), non-zero buckets only.
+fn hist_csv(v: &[i64]) -> String {
+    let mut h = std::collections::BTreeMap::<i64, u64>::new();
+    for x in v {
+        *h.entry(x.max(&0) / 1000).or_default() += 1;
+    }
+    let mut out = String::from("us,count\n");
+    for (us, n) in h {
+        out.push_str(&format!("{us},{n}\n"));
+    }
+    out
+}
+
+fn rt_loop(seconds: u32, period_us: u32, hist_dir: Option<&str>) {
     let mut s = Script::new(period_us);
     let period = i64::from(period_us) * 1000;
     let n = (u64::from(seconds) * 1_000_000 / u64::from(period_us)) as usize;
@@ -187,6 +201,14 @@ fn rt_loop(seconds: u32, period_us: u32) {
             misses += 1;
         }
     }
+    if let Some(dir) = hist_dir {
+        for (name, v) in [("wakeup", &wake), ("cycle", &exec)] {
+            let p = format!("{dir}/host_loop_{name}.csv");
+            if let Err(e) = std::fs::write(&p, hist_csv(v)) {
+                eprintln!("{p}: {e}");
+            }
+        }
+    }
     println!("host rt loop: {n} cycles at {period_us} us");
     println!("wakeup_us: {}", summary(&mut wake));
     println!("cycle_us: {}", summary(&mut exec));
@@ -199,7 +221,7 @@ fn main() {
         Some("rt") => {
             let secs = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(10);
             let period = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(1000);
-            rt_loop(secs, period);
+            rt_loop(secs, period, args.get(4).map(String::as_str));
         }
         other => {
             let k: u32 = other.and_then(|a| a.parse().ok()).unwrap_or(1000);
