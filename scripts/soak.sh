@@ -1,17 +1,18 @@
 #!/usr/bin/env bash
 # Long soak (issue 6; a separate command, not in CI):
 #   scripts/soak.sh [--cycles N] [--period-us P] [--no-load] [--rate HZ]
-#                   [--bridge-prio N] [--out DIR]
+#                   [--bridge-prio N] [--icount-shift S] [--out DIR]
 # One guest (QEMU TCG icount sleep=on: the host<->guest UDP link needs guest
-# time to follow real time; under load it runs at ~1/3 of real time here),
+# time to follow real time; with shift S = 2, a guest instruction counts
+# 4 ns, so a busy guest's time keeps up with real time here: in-guest times
+# are then 4 x the instruction cost of tcg-icount shift 0),
 # the controller started by the launch script with the user's effort
 # (tests/data/walk.eff), the benchmark load (stress-ng cpu/vm/io/hdd + a
 # hackbench loop) in the guest, proto_interface at SCHED_FIFO N (default 50,
 # below SERVO's 80; 0: SCHED_OTHER), and the test client (virtuose_demo,
-# headless, RATE Hz, default 300: about the guest's 1 kHz in real time when
-# icount runs at ~1/3 of real time) on the host coupled through it, until the
+# headless, RATE Hz, default 1000) on the host coupled through it, until the
 # module has run N cycles (default 10^6 = 1000 s of guest time at 1 ms:
-# about 50-60 min wall here). Then the client stops, and the module's
+# about 20-30 min wall here with shift 2). Then the client stops, and the module's
 # statistics and histograms, the bridge's counters and the client's summary
 # are reported.
 #
@@ -23,7 +24,7 @@ HERE=$(cd "$(dirname "$0")" && pwd)
 # shellcheck source=scripts/lib.sh
 . "$HERE/lib.sh"
 ROOT=$HAP_ROOT
-cycles=1000000; period_us=1000; load=load; rate=300; prio=50; out="$ROOT/build/bench"
+cycles=1000000; period_us=1000; load=load; rate=1000; prio=50; shift_s=2; out="$ROOT/build/bench"
 usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -32,6 +33,7 @@ while [ $# -gt 0 ]; do
     --no-load) load=noload ;;
     --rate) rate=${2:?--rate needs a number}; shift ;;
     --bridge-prio) prio=${2:?--bridge-prio needs a number}; shift ;;
+    --icount-shift) shift_s=${2:?--icount-shift needs a number}; shift ;;
     --out) out=${2:?--out needs a directory}; shift ;;
     -h|--help) usage; exit 0 ;;
     *) echo "soak: unknown option $1 (see --help)" >&2; exit 2 ;;
@@ -41,6 +43,7 @@ done
 for v in "$cycles" "$period_us" "$rate"; do
   case "$v" in ''|*[!0-9]*|0) echo "soak: '$v' is not a positive integer" >&2; exit 2 ;; esac
 done
+case "$shift_s" in [0-9]|10) ;; *) echo "soak: --icount-shift wants 0..10, got '$shift_s'" >&2; exit 2 ;; esac
 case "$prio" in ''|*[!0-9]*) echo "soak: --bridge-prio wants 0..79, got '$prio'" >&2; exit 2 ;; esac
 [ "$prio" -lt 80 ] || { echo "soak: --bridge-prio must stay below SERVO's 80, got $prio" >&2; exit 2; }
 
@@ -60,7 +63,7 @@ qlog="$dir/guest.log"
 port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 timeout_s=$(( 900 + cycles * period_us / 1000000 * 6 ))
 t0=$(date +%s)
-read -r qpid _ < <(bash "$HERE/qemu-run.sh" --background --icount-sleep --udp "$port:5000" --timeout "$timeout_s" \
+read -r qpid _ < <(HAP_ICOUNT_SHIFT=$shift_s bash "$HERE/qemu-run.sh" --background --icount-sleep --udp "$port:5000" --timeout "$timeout_s" \
   --log "$qlog" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" "${HAP_EXTRAS[@]+"${HAP_EXTRAS[@]}"}" \
   "$ROOT/tests/bench/soak-guest.sh" "$period_us" "$cycles" "$load" "$prio")
 cpid=""
@@ -95,7 +98,7 @@ pass=0; fail=0
 ok() { pass=$((pass + 1)); echo "ok - $*"; }
 nok() { fail=$((fail + 1)); echo "not ok - $*"; }
 {
-  echo "# hapticctrl soak: mode $mode (icount sleep=on: guest time is instruction time while the guest is busy)"
+  echo "# hapticctrl soak: mode $mode shift=$shift_s (icount sleep=on: while the guest is busy its time is instructions x 2^$shift_s ns)"
   echo "# period $period_us us, $cycles cycles, load: $(sed -n 's/^# load started (\(.*\)): pids.*/\1/p' "$qlog" | tr -d '\r' | head -1 || echo none)"
   echo "# client: virtuose_demo --headless --rate $rate on the host, UDP through proto_interface (SCHED_FIFO $prio; 0 = SCHED_OTHER) in the guest"
   echo "# wall: $((t_done - t0)) s to $cycles cycles, $((t1 - t0)) s in all; guest time $(sed -n 's/.*HAP-SOAK-DONE cycles=[0-9]* guest_ms=\([0-9]*\).*/\1/p' "$qlog" | head -1) ms"
