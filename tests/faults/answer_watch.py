@@ -18,6 +18,12 @@ hap-core vp.rs) it measures the link watchdog's fade in servo cycles:
   Z = the first cycle after L whose coupling wrench is exactly 0 with
       LINK_FADING set; every later answer must have a zero wrench too.
 
+The VPr age is counted in whole cycles (cycles since PROTO_IN decoded the
+frame x period) and VPR_EXTRAPOLATED means "older than one period", so the
+last frame's age is exactly one period at L (it is 0 or 1 there, and more
+than 1 at L + 1): the frame was received Z - L + 1 cycles before the zero
+wrench (`fade_to_zero_after_last_frame_*`).
+
 Prints `key: value` lines (cycles, guest ms = cycles x period, host seconds
 from the kill to the receipt of Z). Exit status 1 if the wrench never reached
 0 or came back, 2 on usage or system errors.
@@ -168,6 +174,9 @@ def main():
     print(f"zero_wrench_cycle: {z}")
     print(f"fade_to_zero_cycles: {z - last_fresh}")
     print(f"fade_to_zero_guest_ms: {(z - last_fresh) * p_ms:.1f}")
+    if exact == "yes":
+        print(f"fade_to_zero_after_last_frame_cycles: {z - last_fresh + 1}")
+        print(f"fade_to_zero_after_last_frame_guest_ms: {(z - last_fresh + 1) * p_ms:.1f}")
     print(f"zero_wrench_host_s_after_kill: {rows[z][0]:.3f}")
     print(f"answers_zero_after: {len([c for c in cycles if c >= z]) - len(back)}")
     if back:
