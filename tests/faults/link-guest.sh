@@ -80,11 +80,17 @@ expect "(b) nothing malformed reached the module" "$(stat_value frames_rejected)
 echo "HAP-B-DONE"
 
 # --- (c) rmmod during full traffic --------------------------------------------
-s2=$(stat_value sessions_opened)
-if wait_for 180 ge sessions_opened $((s2 + 1)); then pass "(c) the streaming client's session is open"; else fail "(c) no third session"; fi
-v1=$(stat_value vpr_frames)
-wait_for 60 ge vpr_frames $((v1 + 300)) && pass "(c) the client streams" || fail "(c) no stream"
-snapshot "(c) streaming"
+# The client streams at 1 kHz, more than the slow debug guest takes: PROTO_IN
+# (SCHED_FIFO 1) then runs back to back and holds mtx_proto most of the time,
+# so a /dev/hap_stats open (which takes mtx_proto) can wait for long. Poll
+# the bridge's counters file instead (rewritten every second, no module lock).
+pstat() { sed -n "s/^$1: *//p" /run/proto_interface.stats 2>/dev/null | head -1; }
+pge() { [ "$(pstat "$1")" -ge "$2" ] 2>/dev/null; }
+b2=$(pstat sessions_opened)
+if wait_for 180 pge sessions_opened $((b2 + 1)); then pass "(c) the streaming client's session is open (bridge)"; else fail "(c) no third session"; fi
+f1=$(pstat forwarded)
+wait_for 120 pge forwarded $((f1 + 300)) && pass "(c) the client streams (bridge: forwarded $f1 -> $(pstat forwarded))" || fail "(c) no stream"
+echo "# (c) bridge: $(tr '\n' ' ' </run/proto_interface.stats)"
 t0=$(now_ms)
 check_not "(c) rmmod while the bridge holds the devices is refused" rmmod hapticctrl
 echo "# FIGURE (c) refused rmmod returned in $(( $(now_ms) - t0 )) ms guest time"
