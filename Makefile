@@ -3,13 +3,15 @@
 #   make            build build/base/module/hapticctrl.ko (builds the test kernel first if needed)
 #   make KDIR=...   build against another Rust-enabled kernel build tree
 #   make DEBUG=1    build against the debug (lockdep, atomic-sleep) kernel variant
+#   make KASAN=1    build against the KASAN kernel variant (debug + generic KASAN; not in CI)
 #   make rustfmt    format the module's Rust sources; make rustfmtcheck to check
 #   make clean
-KDIR ?= $(shell $(CURDIR)/scripts/build-kernel.sh $(if $(DEBUG),--debug) 2>/dev/null)
+VARIANT = $(if $(KASAN),kasan,$(if $(DEBUG),debug,base))
+KDIR ?= $(shell $(CURDIR)/scripts/build-kernel.sh $(if $(KASAN),--kasan,$(if $(DEBUG),--debug)) 2>/dev/null)
 LLVM ?= -22
 RUSTC ?= /usr/bin/rustc
 # Build output outside the source tree, one directory per kernel variant.
-MO ?= $(CURDIR)/build/$(if $(DEBUG),debug,base)
+MO ?= $(CURDIR)/build/$(VARIANT)
 KO = $(MO)/module/hapticctrl.ko
 KMAKE = $(MAKE) -C $(KDIR) M=$(CURDIR) MO=$(MO) LLVM=$(LLVM) RUSTC=$(RUSTC)
 

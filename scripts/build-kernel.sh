@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Build (or reuse) the hapticctrl test kernel: Debian's linux-source-7.3 with
 # scripts/kernel.config (and scripts/kernel-debug.config with --debug) merged
-# onto tinyconfig. The tree is cached outside the checkout, keyed by the source
+# onto tinyconfig; --kasan adds scripts/kernel-kasan.config on top of the debug
+# fragment (generic KASAN, not used by CI). The tree is cached outside the checkout, keyed by the source
 # package version and the fragments' hash; prints the build directory on stdout.
-#   scripts/build-kernel.sh [--debug]
+#   scripts/build-kernel.sh [--debug | --kasan]
 set -euo pipefail
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
@@ -12,7 +13,8 @@ variant=""
 for a in "$@"; do
   case "$a" in
     --debug) variant=debug ;;
-    -h|--help) sed -n '2,7p' "$0"; exit 0 ;;
+    --kasan) variant=kasan ;;
+    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
     *) die "unknown argument '$a' (try --help)" ;;
   esac
 done
@@ -39,8 +41,7 @@ rm -rf "$KDIR"; mkdir -p "$KDIR"
 start=$(date +%s)
 log "configuring ${variant:-base} kernel in $KDIR"
 make -s -C "$SRC" O="$KDIR" "${MAKEFLAGS_K[@]}" tinyconfig >/dev/null
-frags=("$HERE/kernel.config")
-[ "$variant" = debug ] && frags+=("$HERE/kernel-debug.config")
+mapfile -t frags < <(hap_kernel_frags "$variant")
 (cd "$KDIR" && "$SRC/scripts/kconfig/merge_config.sh" -m -O "$KDIR" "$KDIR/.config" "${frags[@]}" >/dev/null)
 make -s -C "$SRC" O="$KDIR" "${MAKEFLAGS_K[@]}" olddefconfig >/dev/null
 make -s -C "$SRC" O="$KDIR" "${MAKEFLAGS_K[@]}" rustavailable >&2 || die "the kernel does not accept this Rust toolchain"

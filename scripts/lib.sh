@@ -19,12 +19,23 @@ HAP_SPLAT_RE='Kernel panic|Oops|WARNING:|BUG:|Call Trace|possible (circular|recu
 log() { printf '[hapticctrl %s] %s\n' "$(date +%H:%M:%S)" "$*" >&2; }
 die() { printf '[hapticctrl] error: %s\n' "$*" >&2; exit 1; }
 
-# The kernel build directory for a variant ("" or "debug"): keyed by the
-# kernel source package version and the hash of the config fragments.
+# The config fragments of a variant ("" = base, "debug", "kasan" = debug +
+# KASAN), one path per line, in merge order.
+hap_kernel_frags() {
+  local variant=${1:-}
+  echo "$HAP_ROOT/scripts/kernel.config"
+  case "$variant" in
+    debug) echo "$HAP_ROOT/scripts/kernel-debug.config" ;;
+    kasan) echo "$HAP_ROOT/scripts/kernel-debug.config"; echo "$HAP_ROOT/scripts/kernel-kasan.config" ;;
+  esac
+}
+
+# The kernel build directory for a variant ("", "debug" or "kasan"): keyed by
+# the kernel source package version and the hash of the config fragments.
 hap_kernel_dir() {
   local variant=${1:-}
-  local frags=("$HAP_ROOT/scripts/kernel.config")
-  [ "$variant" = debug ] && frags+=("$HAP_ROOT/scripts/kernel-debug.config")
+  local frags
+  mapfile -t frags < <(hap_kernel_frags "$variant")
   local srcver
   srcver=$(dpkg-query -W -f='${Version}' "linux-source-$HAP_KERNEL_VERSION" 2>/dev/null || echo unknown)
   local hash

@@ -4,6 +4,7 @@
 #   scripts/qemu-run.sh [options] TEST_SCRIPT [ARG ...]
 # Options:
 #   --debug             use the debug kernel variant (lockdep, atomic-sleep checks)
+#   --kasan             use the KASAN kernel variant (debug + generic KASAN; make KASAN=1)
 #   --icount            deterministic guest time: -icount shift=0,align=off,sleep=off -smp 1
 #   --icount-sleep      link-friendly guest time: -icount shift=0,align=off,sleep=on -smp 1
 #                       (busy time counted in instructions, idle time follows the host clock)
@@ -25,6 +26,7 @@ extras=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --debug) variant=debug ;;
+    --kasan) variant=kasan ;;
     --icount) icount=1 ;;
     --icount-sleep) icount=2 ;;
     --smp) smp=$2; shift ;;
@@ -35,7 +37,7 @@ while [ $# -gt 0 ]; do
     --accel) accel=$2; shift ;;
     --background) background=1 ;;
     --period-us) period_us=$2; shift ;;
-    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     --) shift; break ;;
     -*) die "unknown option $1 (see --help)" ;;
     *) break ;;
@@ -49,7 +51,7 @@ args=$(IFS=,; echo "$*")
 
 KDIR=$(bash "$HERE/build-kernel.sh" ${variant:+--$variant})
 ko="$HAP_ROOT/build/${variant:-base}/module/hapticctrl.ko"
-[ -f "$ko" ] || die "module not built: run 'make${variant:+ DEBUG=1}'"
+[ -f "$ko" ] || die "module not built: run 'make$( case "$variant" in debug) echo " DEBUG=1" ;; kasan) echo " KASAN=1" ;; esac)'"
 name=$(basename "$test_script" .sh)
 mkdir -p "$HAP_ROOT/build/logs"
 log=${log:-$HAP_ROOT/build/logs/$name${variant:+-$variant}.log}

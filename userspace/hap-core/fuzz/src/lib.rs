@@ -1,6 +1,7 @@
 //! The property both fuzz harnesses check on one input.
 
-use hap_core::protocol::{decode, encode, expected_len, MAX_FRAME_LEN};
+use hap_core::crc::crc32c;
+use hap_core::protocol::{decode, encode, expected_len, CRC_LEN, MAGIC, MAX_FRAME_LEN, VERSION};
 
 /// Decode `data`; it must not panic, and a frame it accepts must re-encode
 /// to a frame that decodes to the same thing and has the advertised length.
@@ -16,4 +17,21 @@ pub fn check(data: &[u8]) {
             "decode/encode not a fixed point"
         );
     }
+}
+
+/// `data` with a valid magic, version and CRC-32C written over it (when it
+/// is long enough to hold them), so that the fuzzer spends its time in the
+/// header and payload checks behind the CRC instead of guessing checksums.
+/// The type byte (offset 3) and everything else stay as the fuzzer chose.
+pub fn with_valid_crc(data: &[u8]) -> Vec<u8> {
+    let mut v = data.to_vec();
+    if v.len() >= 4 + CRC_LEN {
+        v[0] = MAGIC[0];
+        v[1] = MAGIC[1];
+        v[2] = VERSION;
+        let n = v.len();
+        let c = crc32c(&v[..n - CRC_LEN]);
+        v[n - CRC_LEN..].copy_from_slice(&c.to_be_bytes());
+    }
+    v
 }
