@@ -25,6 +25,8 @@
 #   --rate HZ       datagrams per second of real time (default 1000)
 #   --port P        host UDP port forwarded to the guest's 5000 (default 47320)
 #   --out DIR       results (default build/bench/hostile-<UTC stamp>)
+#   --icount-shift S  guest ns per instruction = 2^S (default 2; see
+#                   scripts/bench-link.sh --help)
 #   --nice N        run QEMU and the client at nice N (e.g. -10, needs root;
 #                   default 0): see scripts/bench-link.sh --help
 #
@@ -39,7 +41,7 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 ROOT=$HAP_ROOT
 
-count=100000; dev_count=20000; rate=1000; port=47320; out=""; period_us=1000; nice_n=0
+count=100000; dev_count=20000; rate=1000; port=47320; out=""; period_us=1000; nice_n=0; shift_s=2
 usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
 num() { [[ "$2" =~ ^[0-9]+$ ]] || die "$1 needs a non-negative integer, got '$2' (see --help)"; }
 while [ $# -gt 0 ]; do
@@ -49,6 +51,7 @@ while [ $# -gt 0 ]; do
     --rate) [ $# -ge 2 ] || die "--rate needs a value"; num "$1" "$2"; rate=$2; shift ;;
     --port) [ $# -ge 2 ] || die "--port needs a value"; num "$1" "$2"; port=$2; shift ;;
     --out) [ $# -ge 2 ] || die "--out needs a value"; out=$2; shift ;;
+    --icount-shift) [ $# -ge 2 ] || die "--icount-shift needs a value"; num "$1" "$2"; shift_s=$2; shift ;;
     --nice) [ $# -ge 2 ] || die "--nice needs a value"; [[ "$2" =~ ^-?[0-9]+$ ]] || die "--nice needs an integer, got '$2'"; nice_n=$2; shift ;;
     -h|--help) usage; exit 0 ;;
     *) die "unknown argument '$1' (see --help)" ;;
@@ -76,7 +79,7 @@ client_s=$(( net_s + 20 ))                     # the client outlives the net cam
 max_s=$(( client_s * 4 + dev_count * dev_iv / 1000000 * 4 + 300 ))
 t_boot=$(date +%s)
 load0=$(cut -d' ' -f1-3 /proc/loadavg)
-read -r qpid qlog < <(nice -n "$nice_n" bash "$HERE/qemu-run.sh" --background --icount-sleep --udp "$port:5000" \
+read -r qpid qlog < <(HAP_ICOUNT_SHIFT=$shift_s nice -n "$nice_n" bash "$HERE/qemu-run.sh" --background --icount-sleep --udp "$port:5000" \
   --log "$out/guest.log" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" \
   "$ROOT/tests/guest/hostile.sh" "$period_us" "$max_s" "$dev_count" "$dev_iv")
 trap 'kill "$qpid" 2>/dev/null || true' EXIT
@@ -110,9 +113,9 @@ between HAP-PROTO > "$out/proto_interface.txt"
 between HAP-HOSTILE-DEV > "$out/hostile_dev.txt"
 
 python3 - "$out" "$hrc" "$crc" "$count" "$dev_count" "$rate" \
-  "$((t_ready - t_boot))" "$((t_client - t_ready))" "$((t_end - t_boot))" "$load0" "$load1" "$nice_n" <<'PY' | tee "$out/report.txt"
+  "$((t_ready - t_boot))" "$((t_client - t_ready))" "$((t_end - t_boot))" "$load0" "$load1" "$nice_n" "$shift_s" <<'PY' | tee "$out/report.txt"
 import re, sys
-out, hrc, crc, count, dev_count, rate, boot_s, client_s, wall_s, load0, load1, nice_n = sys.argv[1:]
+out, hrc, crc, count, dev_count, rate, boot_s, client_s, wall_s, load0, load1, nice_n, shift_s = sys.argv[1:]
 count, dev_count = int(count), int(dev_count)
 def kv(path):
     d = {}
@@ -133,6 +136,8 @@ net, dev = kv(f"{out}/hostile_net.txt"), kv(f"{out}/hostile_dev.txt")
 m, m0, b, c = kv(f"{out}/hap_stats.txt"), kv(f"{out}/hap_stats_before.txt"), kv(f"{out}/proto_interface.txt"), kv(f"{out}/client/summary.txt")
 log = open(f"{out}/guest.log", errors="replace").read()
 mode = (re.search(r"hap\.mode=(\S+)", log) or [None, "unknown"])[1]
+if "icount" in mode:
+    mode += f" shift={shift_s}"
 passed = failed = 0
 def check(desc, ok, detail=""):
     global passed, failed
