@@ -214,7 +214,9 @@ if [ "$plot" = 1 ]; then
   hapctl="$ROOT/userspace/target/release/hapctl"
   (cd "$ROOT/userspace" && cargo build --release --quiet -p hapctl) >&2 || true
   if [ -x "$hapctl" ] && "$hapctl" plot-link --help >/dev/null 2>&1; then
-    "$hapctl" plot-link --dir "$out/client" --out "$out" >&2 || log "plotting failed (figures above stand)"
+    mode=$(sed -n 's/^# hapticctrl link benchmark, mode //p' "$out/report.txt")
+    "$hapctl" plot-link --dir "$out/client" --out "$out" \
+      --title "($samples requests / ${interval_us} us, $mode)" >&2 || log "plotting failed (figures above stand)"
   fi
 fi
 cat "$out/report.txt"

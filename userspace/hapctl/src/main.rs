@@ -9,6 +9,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 #[cfg(feature = "analyze")]
 mod analyze;
 mod kv;
+#[cfg(feature = "analyze")]
+mod plot_link;
 mod simlog;
 
 /// Control the hapticctrl haptic controller.
@@ -78,6 +80,20 @@ enum Cmd {
         /// cycle-time and wake-up latency histograms.
         #[arg(long)]
         stats: Option<PathBuf>,
+    },
+    /// Link benchmark plots (scripts/bench-link.sh): rtt_hist and rate,
+    /// SVG and PNG, from a client results directory.
+    #[cfg(feature = "analyze")]
+    PlotLink {
+        /// Directory holding rtt_hist.csv and rate.csv.
+        #[arg(long)]
+        dir: PathBuf,
+        /// Output directory (created).
+        #[arg(long)]
+        out: PathBuf,
+        /// Appended to the plot titles (e.g. the mode).
+        #[arg(long, default_value = "")]
+        title: String,
     },
 }
 
@@ -208,6 +224,8 @@ fn run(cli: Cli) -> Result<(), String> {
         Cmd::Log { out, cycles } => simlog::capture(&dev(d, "hap_simlog"), out.as_deref(), cycles),
         #[cfg(feature = "analyze")]
         Cmd::Analyze { log, out, stats } => analyze::run(&log, &out, stats.as_deref()),
+        #[cfg(feature = "analyze")]
+        Cmd::PlotLink { dir, out, title } => plot_link::run(&dir, &out, &title),
     }
 }
 
