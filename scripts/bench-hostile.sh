@@ -22,6 +22,9 @@
 #   --count N       hostile datagrams at the bridge (default 100000)
 #   --dev-count M   hostile frames into rtf_in in the guest (default 20000;
 #                   0 to skip)
+#   --client-interval-us U  the legitimate client's request interval
+#                   (default 3000: the spec's 1 sample / 3 ms; 1000 floods a
+#                   guest slowed down by a loaded host, see bench-link.sh)
 #   --rate HZ       datagrams per second of real time (default 1000)
 #   --port P        host UDP port forwarded to the guest's 5000 (default 47320)
 #   --out DIR       results (default build/bench/hostile-<UTC stamp>)
@@ -41,13 +44,14 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 ROOT=$HAP_ROOT
 
-count=100000; dev_count=20000; rate=1000; port=47320; out=""; period_us=1000; nice_n=0; shift_s=2
+count=100000; dev_count=20000; rate=1000; port=47320; out=""; period_us=1000; nice_n=0; shift_s=2; client_iv=3000
 usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
 num() { [[ "$2" =~ ^[0-9]+$ ]] || die "$1 needs a non-negative integer, got '$2' (see --help)"; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --count) [ $# -ge 2 ] || die "--count needs a value"; num "$1" "$2"; count=$2; shift ;;
     --dev-count) [ $# -ge 2 ] || die "--dev-count needs a value"; num "$1" "$2"; dev_count=$2; shift ;;
+    --client-interval-us) [ $# -ge 2 ] || die "--client-interval-us needs a value"; num "$1" "$2"; client_iv=$2; shift ;;
     --rate) [ $# -ge 2 ] || die "--rate needs a value"; num "$1" "$2"; rate=$2; shift ;;
     --port) [ $# -ge 2 ] || die "--port needs a value"; num "$1" "$2"; port=$2; shift ;;
     --out) [ $# -ge 2 ] || die "--out needs a value"; out=$2; shift ;;
@@ -86,9 +90,9 @@ trap 'kill "$qpid" 2>/dev/null || true' EXIT
 for _ in $(seq 1200); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
 grep -q HAP-READY "$qlog" || { tail -30 "$qlog" >&2; die "the guest did not get ready (log: $qlog)"; }
 t_ready=$(date +%s)
-log "guest ready after $((t_ready - t_boot)) s; client ${client_s} s, $count hostile datagrams at $rate/s, $dev_count device frames"
+log "guest ready after $((t_ready - t_boot)) s; client ${client_s} s every ${client_iv} us, $count hostile datagrams at $rate/s, $dev_count device frames"
 
-nice -n "$nice_n" "$demo" --server "127.0.0.1#$port" --headless --duration "$client_s" --timeout-ms 300 --bench \
+nice -n "$nice_n" "$demo" --server "127.0.0.1#$port" --headless --duration "$client_s" --interval-us "$client_iv" --timeout-ms 300 --bench \
   --results "$out/client" > "$out/client.txt" 2>&1 &
 dpid=$!
 trap 'kill "$dpid" "$qpid" 2>/dev/null || true' EXIT
