@@ -406,6 +406,8 @@ pub struct Report {
     /// Device writes refused (EINVAL) (dev).
     pub refused: u64,
     pub seconds: f64,
+    /// Why the run stopped early (the counts above are what was sent).
+    pub error: Option<String>,
 }
 
 impl Report {
@@ -421,6 +423,9 @@ impl Report {
             "retries_full: {}\nrefused: {}\n",
             self.retries_full, self.refused
         );
+        if let Some(e) = &self.error {
+            s += &format!("error: {e}\n");
+        }
         s
     }
 }
@@ -469,13 +474,15 @@ pub fn run_net(
     let mut pacer = Pacer::new(interval);
     for i in 0..count {
         let (b, kind) = g.make(i);
-        *r.kinds.entry(kind).or_default() += 1;
-        *r.expect.entry(bridge_counter(&b).into()).or_default() += 1;
         // ECONNREFUSED from an ICMP error of an earlier datagram: retry once.
         if sock.send_to(&b, to).is_err() {
-            sock.send_to(&b, to)
-                .map_err(|e| format!("send to {to}: {e}"))?;
+            if let Err(e) = sock.send_to(&b, to) {
+                r.error = Some(format!("send to {to}: datagram {i}: {e}"));
+                break;
+            }
         }
+        *r.kinds.entry(kind).or_default() += 1;
+        *r.expect.entry(bridge_counter(&b).into()).or_default() += 1;
         r.sent += 1;
         pacer.wait();
     }
@@ -507,22 +514,27 @@ pub fn run_dev(
                 "generator bug: frame {i} ({kind}) would be accepted: {c}"
             ));
         }
-        *r.kinds.entry(kind).or_default() += 1;
-        *r.expect.entry(c).or_default() += 1;
-        loop {
+        let res = loop {
             match f.write(&b) {
-                Ok(_) => break,
+                Ok(_) => break Ok(()),
                 Err(e) if e.raw_os_error() == Some(libc::EINVAL) => {
                     r.refused += 1;
-                    break;
+                    break Ok(());
                 }
                 Err(e) if e.raw_os_error() == Some(libc::EAGAIN) => {
                     r.retries_full += 1;
                     std::thread::sleep(Duration::from_millis(1));
                 }
-                Err(e) => return Err(format!("{dev}: frame {i}: {e}")),
+                Err(e) => break Err(format!("{dev}: frame {i}: {e}")),
             }
+        };
+        if let Err(e) = res {
+            // The module went away (fail-safe, rmmod): report what was sent.
+            r.error = Some(e);
+            break;
         }
+        *r.kinds.entry(kind).or_default() += 1;
+        *r.expect.entry(c).or_default() += 1;
         r.sent += 1;
         pacer.wait();
     }

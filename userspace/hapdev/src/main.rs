@@ -655,9 +655,12 @@ fn main() -> ExitCode {
                 ("dev", _, Some(s)) => hostile::run_dev(&cli.rtf_in, *s, *count, iv, *seed),
                 _ => Err("hostile: net needs --to, dev needs --session".into()),
             };
-            r.map(|r| {
+            r.and_then(|r| {
                 print!("{}", r.render());
-                true
+                match r.error {
+                    Some(e) => Err(format!("hostile: stopped early: {e}")),
+                    None => Ok(true),
+                }
             })
         }
     };
