@@ -26,6 +26,9 @@
 #                   (default 3000: the spec's 1 sample / 3 ms; 1000 floods a
 #                   guest slowed down by a loaded host, see bench-link.sh)
 #   --rate HZ       datagrams per second of real time (default 1000)
+#   --period-us P   servo period in the guest (default 1000; a longer one
+#                   gives an emulated guest slowed by a loaded host the slack
+#                   to hold its deadlines, so the counters can be checked)
 #   --port P        host UDP port forwarded to the guest's 5000 (default 47320)
 #   --out DIR       results (default build/bench/hostile-<UTC stamp>)
 #   --icount-shift S  guest ns per instruction = 2^S (default 2; see
@@ -53,6 +56,7 @@ while [ $# -gt 0 ]; do
     --dev-count) [ $# -ge 2 ] || die "--dev-count needs a value"; num "$1" "$2"; dev_count=$2; shift ;;
     --client-interval-us) [ $# -ge 2 ] || die "--client-interval-us needs a value"; num "$1" "$2"; client_iv=$2; shift ;;
     --rate) [ $# -ge 2 ] || die "--rate needs a value"; num "$1" "$2"; rate=$2; shift ;;
+    --period-us) [ $# -ge 2 ] || die "--period-us needs a value"; num "$1" "$2"; period_us=$2; shift ;;
     --port) [ $# -ge 2 ] || die "--port needs a value"; num "$1" "$2"; port=$2; shift ;;
     --out) [ $# -ge 2 ] || die "--out needs a value"; out=$2; shift ;;
     --icount-shift) [ $# -ge 2 ] || die "--icount-shift needs a value"; num "$1" "$2"; shift_s=$2; shift ;;
@@ -150,6 +154,7 @@ def check(desc, ok, detail=""):
     else:
         failed += 1; print(f"not ok - {desc}{' (' + detail + ')' if detail else ''}")
 print(f"# hapticctrl hostile-input campaign, mode {mode}")
+print(f"# servo period {re.search(r'HAP-READY period_us=(\d+)', log)[1] if 'HAP-READY' in log else '?'} us")
 print(f"# wall: boot {boot_s} s, client + campaign {client_s} s, total {wall_s} s; host load average {load0} -> {load1}; QEMU and client at nice {nice_n}")
 print(f"# net: {n(net, 'sent')} datagrams in {net.get('seconds', '?')} s; dev: {n(dev, 'sent')} frames in {dev.get('seconds', '?')} s (guest)")
 for k, v in sorted(net.items()):
