@@ -148,7 +148,7 @@ def kv(path):
 c, m, b = kv(f"{out}/client/summary.txt"), kv(f"{out}/hap_stats.txt"), kv(f"{out}/proto_interface.txt")
 log = open(f"{out}/guest.log", errors="replace").read()
 mode = (re.search(r"hap\.mode=(\S+)", log) or [None, "unknown"])[1]
-if "icount" in mode:
+if mode == "tcg-icount-sleep":
     mode += f" shift={shift_s}"
 problems = re.findall(r".*(?:Kernel panic|Oops|WARNING:|BUG:|Call Trace|rust_panic|panicked at).*", log)
 g = lambda d, k: d.get(k, "?")
