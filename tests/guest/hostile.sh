@@ -37,9 +37,12 @@ if [ "$dev_count" -gt 0 ]; then
   echo "HAP-HOSTILE-DEV-BEGIN"; cat /tmp/hostile_dev.txt; echo "HAP-HOSTILE-DEV-END"
 fi
 expect "the session survived the device-level campaign" "$(stat_value session)" = "$session"
+# Until the client closes its session, or the bridge no longer has a client
+# (closed or expired: then the module's session was left open).
 while [ $t -lt $((max_s * 10)) ]; do
   opened=$(stat_value sessions_opened); cur=$(stat_value session)
   [ "${opened:-0}" -ge 1 ] && [ "$cur" = 0 ] && break
+  grep -q '^client: none' /run/proto_interface.stats 2>/dev/null && break
   usleep 100000
   t=$((t + 1))
 done
