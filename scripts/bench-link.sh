@@ -17,6 +17,11 @@
 #   --max-seconds T   stop the client after T s of real time even if fewer
 #                     than N requests were sent (the report says so)
 #   --no-plot         do not render rtt_hist/rate plots with hapctl
+#   --sleep-off       run the guest under --icount (tcg-icount, sleep=off):
+#                     host scheduling cannot make the servo miss, but the
+#                     guest runs faster than real time while it idles, so
+#                     rates and RTTs are not timing figures; loss, counters
+#                     and the absence of misses over N samples are
 #   --icount-shift S  guest ns per instruction = 2^S (default 2, see below)
 #   --nice N          run QEMU and the client at nice N (e.g. -10, needs root;
 #                     default 0). On a shared, loaded host, icount-sleep guest
@@ -52,7 +57,7 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 ROOT=$HAP_ROOT
 
-samples=100000; interval_us=1000; period_us=1000; port=47310; out=""; plot=1; nice_n=0; shift_s=2; max_seconds=0
+samples=100000; interval_us=1000; period_us=1000; port=47310; out=""; plot=1; nice_n=0; shift_s=2; max_seconds=0; qmode=--icount-sleep
 usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
 num() { [[ "$2" =~ ^[0-9]+$ ]] || die "$1 needs a non-negative integer, got '$2' (see --help)"; }
 while [ $# -gt 0 ]; do
@@ -64,6 +69,7 @@ while [ $# -gt 0 ]; do
     --port) [ $# -ge 2 ] || die "--port needs a value"; num "$1" "$2"; port=$2; shift ;;
     --out) [ $# -ge 2 ] || die "--out needs a value"; out=$2; shift ;;
     --no-plot) plot=0 ;;
+    --sleep-off) qmode=--icount ;;
     --max-seconds) [ $# -ge 2 ] || die "--max-seconds needs a value"; num "$1" "$2"; max_seconds=$2; shift ;;
     --icount-shift) [ $# -ge 2 ] || die "--icount-shift needs a value"; num "$1" "$2"; shift_s=$2; shift ;;
     --nice) [ $# -ge 2 ] || die "--nice needs a value"; [[ "$2" =~ ^-?[0-9]+$ ]] || die "--nice needs an integer, got '$2'"; nice_n=$2; shift ;;
@@ -92,7 +98,7 @@ python3 -c "import socket,sys; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM
 max_s=$(( samples * interval_us / 1000000 * 2 + 180 ))
 t_boot=$(date +%s)
 load0=$(cut -d' ' -f1-3 /proc/loadavg)
-read -r qpid qlog < <(HAP_ICOUNT_SHIFT=$shift_s nice -n "$nice_n" bash "$HERE/qemu-run.sh" --background --icount-sleep --udp "$port:5000" \
+read -r qpid qlog < <(HAP_ICOUNT_SHIFT=$shift_s nice -n "$nice_n" bash "$HERE/qemu-run.sh" --background "$qmode" --udp "$port:5000" \
   --log "$out/guest.log" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" \
   "$ROOT/tests/guest/serve.sh" "$period_us" "$max_s")
 trap 'kill "$qpid" 2>/dev/null || true' EXIT
