@@ -11,6 +11,8 @@ mod analyze;
 mod kv;
 #[cfg(feature = "analyze")]
 mod plot;
+#[cfg(feature = "analyze")]
+mod plot_link;
 mod simlog;
 
 /// Control the hapticctrl haptic controller.
@@ -105,6 +107,20 @@ enum Cmd {
         /// One or more NAME=FILE.csv (the legend's name, the data).
         #[arg(required = true)]
         series: Vec<String>,
+    },
+    /// Link benchmark plots (scripts/bench-link.sh): rtt_hist and rate,
+    /// SVG and PNG, from a client results directory.
+    #[cfg(feature = "analyze")]
+    PlotLink {
+        /// Directory holding rtt_hist.csv and rate.csv.
+        #[arg(long)]
+        dir: PathBuf,
+        /// Output directory (created).
+        #[arg(long)]
+        out: PathBuf,
+        /// Appended to the plot titles (e.g. the mode).
+        #[arg(long, default_value = "")]
+        title: String,
     },
 }
 
@@ -274,6 +290,8 @@ fn run(cli: Cli) -> Result<(), String> {
             }
             Ok(())
         }
+        #[cfg(feature = "analyze")]
+        Cmd::PlotLink { dir, out, title } => plot_link::run(&dir, &out, &title),
     }
 }
 

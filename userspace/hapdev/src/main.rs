@@ -7,8 +7,12 @@
 //! hapdev couple --target X,Y,Z --ms N              (open, impedance, power on, stream VPr, report)
 //! hapdev simlog [--count N] [--raw FILE]           (read position-log records)
 //! hapdev replay-compare --effort F --load-cycle K --guest FILE  (bit-for-bit check)
+//! hapdev hostile net --to 127.0.0.1:PORT --count N  (hostile datagrams at the bridge)
+//! hapdev hostile dev --session S --count N          (hostile frames into rtf_in)
 //! ```
 //! Exit status: 0 on success, 1 on a failed check, 2 on bad usage or I/O error.
+
+mod hostile;
 
 use clap::{Parser, Subcommand};
 use hap_core::{
@@ -92,6 +96,27 @@ enum Cmd {
         /// Leave out the first N records from the summary (not from --raw).
         #[arg(long, default_value_t = 0)]
         skip: usize,
+    },
+    /// Hostile-input campaign: malformed/hostile frames built with hap-core,
+    /// printing how many went to each counter (`expect.<counter>: n`).
+    Hostile {
+        /// `net` (UDP datagrams to the bridge from a stray source) or `dev`
+        /// (frames written to rtf_in next to the live session).
+        #[arg(value_parser = ["net", "dev"])]
+        target: String,
+        #[arg(long, default_value_t = 100_000)]
+        count: u64,
+        /// net: the bridge's address (loopback only).
+        #[arg(long, required_if_eq("target", "net"))]
+        to: Option<std::net::SocketAddr>,
+        /// dev: the live session id (`session:` in /dev/hap_stats).
+        #[arg(long, required_if_eq("target", "dev"))]
+        session: Option<u16>,
+        /// Average interval between two frames, µs (0: as fast as possible).
+        #[arg(long, default_value_t = 1000)]
+        interval_us: u64,
+        #[arg(long, default_value_t = 0x5eed)]
+        seed: u64,
     },
     /// Replay a scripted run through hap-core and compare with a guest log.
     ReplayCompare {
@@ -616,6 +641,28 @@ fn main() -> ExitCode {
             guest,
             period_us,
         } => cmd_replay(effort, *load_cycle, guest, *period_us),
+        Cmd::Hostile {
+            target,
+            count,
+            to,
+            session,
+            interval_us,
+            seed,
+        } => {
+            let iv = Duration::from_micros(*interval_us);
+            let r = match (target.as_str(), to, session) {
+                ("net", Some(to), _) => hostile::run_net(*to, *count, iv, *seed),
+                ("dev", _, Some(s)) => hostile::run_dev(&cli.rtf_in, *s, *count, iv, *seed),
+                _ => Err("hostile: net needs --to, dev needs --session".into()),
+            };
+            r.and_then(|r| {
+                print!("{}", r.render());
+                match r.error {
+                    Some(e) => Err(format!("hostile: stopped early: {e}")),
+                    None => Ok(true),
+                }
+            })
+        }
     };
     match res {
         Ok(true) => ExitCode::SUCCESS,

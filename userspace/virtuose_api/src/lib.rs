@@ -200,6 +200,23 @@ enum Reply {
 
 const RTT_RING: usize = 4096;
 
+/// One VprStream → Answer round trip, recorded when
+/// [`VirtContext::record_rtt`] is on (for benchmarks: per-sample export).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RttSample {
+    /// Sequence number of the VprStream the answer echoed.
+    pub vpr_seq: u32,
+    /// Time from sending that VprStream to receiving the first answer that
+    /// used it, µs (saturated at `u32::MAX`).
+    pub rtt_us: u32,
+    /// The answer's servo cycle counter (low 32 bits): controller time.
+    pub cycle: u32,
+}
+
+/// Samples kept between two [`VirtContext::drain_rtt`] calls; more are
+/// counted in [`VirtContext::rtt_overflow`] and dropped.
+pub const RTT_LOG_MAX: usize = 1 << 20;
+
 struct State {
     session: u16,
     session_nonce: u32,
@@ -217,6 +234,9 @@ struct State {
     window_count: u64,
     /// Bumped on every accepted answer (for `wait_answer`).
     answer_gen: u64,
+    /// Per-sample round trips, when recording (`record_rtt`).
+    rtt_log: Option<Vec<RttSample>>,
+    rtt_overflow: u64,
 }
 
 struct Inner {
@@ -365,6 +385,8 @@ impl VirtContext {
                 window_start: Instant::now(),
                 window_count: 0,
                 answer_gen: 0,
+                rtt_log: None,
+                rtt_overflow: 0,
             }),
             cond: Condvar::new(),
             stop: AtomicBool::new(false),
@@ -686,6 +708,30 @@ impl VirtContext {
         s
     }
 
+    /// Start (true) or stop (false) recording every round trip as an
+    /// [`RttSample`]; collect them with [`drain_rtt`](Self::drain_rtt).
+    pub fn record_rtt(&self, on: bool) {
+        let mut st = self.inner.lock();
+        match (on, st.rtt_log.is_some()) {
+            (true, false) => st.rtt_log = Some(Vec::with_capacity(4096)),
+            (false, true) => st.rtt_log = None,
+            _ => {}
+        }
+    }
+
+    /// Move the round trips recorded since the last call to `out`.
+    pub fn drain_rtt(&self, out: &mut Vec<RttSample>) {
+        if let Some(log) = self.inner.lock().rtt_log.as_mut() {
+            out.append(log);
+        }
+    }
+
+    /// Round trips not recorded because more than [`RTT_LOG_MAX`] were
+    /// waiting to be drained.
+    pub fn rtt_overflow(&self) -> u64 {
+        self.inner.lock().rtt_overflow
+    }
+
     /// Close the session (CloseSession, acknowledged if the controller
     /// answers in time) and stop the receiver thread. Idempotent.
     pub fn close(&mut self) -> Result<()> {
@@ -757,6 +803,9 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
                 }
             }
             Frame::Ack { acked_seq, .. } => {
+                if st.session_ack.is_some() {
+                    account_seq(&mut st, h.seq);
+                }
                 if st.replies.len() > 1024 {
                     st.replies.clear();
                 }
@@ -766,6 +815,9 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
                 reason,
                 rejected_seq,
             } => {
+                if st.session_ack.is_some() {
+                    account_seq(&mut st, h.seq);
+                }
                 if st.replies.len() > 1024 {
                     st.replies.clear();
                 }
@@ -775,23 +827,9 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
                 if st.session_ack.is_none() {
                     continue;
                 }
-                // Duplicate / stale / loss accounting on the controller's
-                // sequence numbers (one counter for all its frames).
-                if let Some(last) = st.last_seq {
-                    if h.seq == last {
-                        st.stats.duplicates += 1;
-                        continue;
-                    }
-                    if !seq_newer(h.seq, last) {
-                        st.stats.stale += 1;
-                        continue;
-                    }
-                    let gap = h.seq.wrapping_sub(last) as u64;
-                    if gap > 1 && gap < 1_000_000 {
-                        st.stats.lost += gap - 1;
-                    }
+                if !account_seq(&mut st, h.seq) {
+                    continue;
                 }
-                st.last_seq = Some(h.seq);
                 match frame {
                     Frame::Answer(a) => {
                         on_answer(&mut st, a);
@@ -814,6 +852,29 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
     }
 }
 
+/// Duplicate / stale / loss accounting on the controller's sequence numbers:
+/// one counter for all its frames (answers, answer twists, acks, errors), so
+/// replies are accounted too, else each would look like a lost answer.
+/// Returns false for a duplicate or stale frame.
+fn account_seq(st: &mut State, seq: u32) -> bool {
+    if let Some(last) = st.last_seq {
+        if seq == last {
+            st.stats.duplicates += 1;
+            return false;
+        }
+        if !seq_newer(seq, last) {
+            st.stats.stale += 1;
+            return false;
+        }
+        let gap = seq.wrapping_sub(last) as u64;
+        if gap > 1 && gap < 1_000_000 {
+            st.stats.lost += gap - 1;
+        }
+    }
+    st.last_seq = Some(seq);
+    true
+}
+
 fn on_answer(st: &mut State, a: Answer) {
     st.stats.answers += 1;
     st.answer_gen += 1;
@@ -829,7 +890,24 @@ fn on_answer(st: &mut State, a: Answer) {
         let slot = st.sent_at[a.vpr_seq as usize % RTT_RING];
         if slot.0 == a.vpr_seq {
             if let Some(t) = slot.1 {
-                let rtt = t.elapsed().as_secs_f64() * 1e3;
+                let el = t.elapsed();
+                let rtt = el.as_secs_f64() * 1e3;
+                let sample = RttSample {
+                    vpr_seq: a.vpr_seq,
+                    rtt_us: u32::try_from(el.as_micros()).unwrap_or(u32::MAX),
+                    cycle: a.cycle,
+                };
+                let mut overflow = false;
+                if let Some(log) = st.rtt_log.as_mut() {
+                    if log.len() < RTT_LOG_MAX {
+                        log.push(sample);
+                    } else {
+                        overflow = true;
+                    }
+                }
+                if overflow {
+                    st.rtt_overflow += 1;
+                }
                 st.stats.rtt_ms_last = rtt;
                 st.rtt_sum += rtt;
                 st.rtt_n += 1;

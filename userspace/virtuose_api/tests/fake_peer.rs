@@ -117,6 +117,49 @@ fn loss_and_duplicates_are_measured() {
 }
 
 #[test]
+fn round_trips_are_recorded_per_sample() {
+    let peer = FakePeer::start(FakePeerConfig::default()).unwrap();
+    let mut vc = VirtContext::open_with(&peer.address(), quick()).unwrap();
+    let mut got = Vec::new();
+    vc.drain_rtt(&mut got);
+    assert!(got.is_empty(), "nothing recorded before record_rtt(true)");
+    vc.record_rtt(true);
+    for i in 0..200 {
+        vc.set_position(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+            .unwrap();
+        vc.wait_answer(Duration::from_millis(5));
+        if i == 50 {
+            // Acks share the controller's sequence counter with the
+            // answers: they must not be counted as lost answers.
+            vc.set_power_on(true).unwrap();
+            vc.set_time_step(0.001).unwrap();
+        }
+    }
+    std::thread::sleep(Duration::from_millis(50));
+    vc.drain_rtt(&mut got);
+    let ls = vc.link_stats();
+    assert!(!got.is_empty(), "no round trip recorded: {ls:?}");
+    assert!(got.len() as u64 <= ls.vpr_sent, "{} > {ls:?}", got.len());
+    // Each VprStream is echoed at most once, in order, with a sane RTT.
+    assert!(
+        got.windows(2).all(|w| w[1].vpr_seq > w[0].vpr_seq),
+        "{got:?}"
+    );
+    assert!(got.iter().all(|s| s.rtt_us < 1_000_000), "{got:?}");
+    let max_us = got.iter().map(|s| s.rtt_us).max().unwrap() as f64;
+    assert!(
+        (max_us / 1e3 - ls.rtt_ms_max).abs() < 0.01,
+        "{max_us} vs {ls:?}"
+    );
+    let n = got.len();
+    vc.drain_rtt(&mut got);
+    assert_eq!(got.len(), n, "a second drain adds nothing new");
+    assert_eq!(vc.rtt_overflow(), 0);
+    assert_eq!(ls.lost, 0, "{ls:?}");
+    vc.record_rtt(false);
+}
+
+#[test]
 fn second_client_is_refused_and_times_out() {
     let peer = FakePeer::start(FakePeerConfig::default()).unwrap();
     let _first = VirtContext::open_with(&peer.address(), quick()).unwrap();

@@ -45,6 +45,163 @@ struct Args {
     /// Reply timeout of acknowledged requests, ms.
     #[arg(long, default_value_t = 250)]
     timeout_ms: u64,
+    /// Client request interval in µs (overrides --rate; e.g. 3000 for the
+    /// spec's 1 sample / 3 ms).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(200..=100_000))]
+    interval_us: Option<u32>,
+    /// Stop after this many client cycles (VprStream requests); 0: use
+    /// --duration.
+    #[arg(long, default_value_t = 0)]
+    samples: u64,
+    /// Link benchmark: record every round trip and write rtt_hist.csv and
+    /// rate.csv next to summary.txt (needs --results), with percentiles and
+    /// guest-time figures in the summary.
+    #[arg(long, requires = "results")]
+    bench: bool,
+}
+
+/// Link-benchmark bookkeeping (`--bench`): the RTT histogram (1 µs
+/// buckets) and one rate row per real second.
+#[derive(Default)]
+struct Bench {
+    hist: std::collections::BTreeMap<u32, u64>,
+    samples: Vec<virtuose_api::RttSample>,
+    rate_csv: String,
+    last_t: f64,
+    last_answers: u64,
+    last_lost: u64,
+    last_vpr: u64,
+    last_cycle: Option<u32>,
+    first_cycle: Option<u32>,
+    /// Servo cycles elapsed (wrap-safe sum of the 32-bit deltas).
+    cycles: u64,
+    /// Answers received before the benchmark started (initialisation).
+    start_answers: u64,
+}
+
+impl Bench {
+    fn drain(&mut self, vc: &VirtContext) {
+        vc.drain_rtt(&mut self.samples);
+        for s in self.samples.drain(..) {
+            *self.hist.entry(s.rtt_us).or_default() += 1;
+        }
+    }
+
+    /// One `rate.csv` row for the real time since the last one.
+    fn row(&mut self, t: f64, vc: &VirtContext) {
+        self.drain(vc);
+        let ls = vc.link_stats();
+        let cyc = vc.get_cycle().ok();
+        let dcyc = match (self.last_cycle, cyc) {
+            (Some(a), Some(b)) => b.wrapping_sub(a) as u64,
+            _ => 0,
+        };
+        if self.first_cycle.is_none() {
+            self.first_cycle = cyc;
+        }
+        if cyc.is_some() {
+            self.last_cycle = cyc;
+        }
+        self.cycles += dcyc;
+        let dt = (t - self.last_t).max(1e-9);
+        let guest_s = dcyc as f64 * ls.period_us as f64 / 1e6;
+        let _ = writeln!(
+            self.rate_csv,
+            "{:.3},{:.1},{},{},{},{:.4},{:.1}",
+            t,
+            (ls.answers - self.last_answers) as f64 / dt,
+            ls.answers - self.last_answers,
+            ls.lost - self.last_lost,
+            ls.vpr_sent - self.last_vpr,
+            guest_s / dt,
+            if guest_s > 0.0 {
+                (ls.answers - self.last_answers) as f64 / guest_s
+            } else {
+                0.0
+            }
+        );
+        self.last_t = t;
+        self.last_answers = ls.answers;
+        self.last_lost = ls.lost;
+        self.last_vpr = ls.vpr_sent;
+    }
+
+    /// The value at quantile `q` (0..=1) of the histogram (nearest rank).
+    fn quantile(&self, q: f64) -> u32 {
+        let n: u64 = self.hist.values().sum();
+        if n == 0 {
+            return 0;
+        }
+        let rank = ((q * n as f64).ceil() as u64).clamp(1, n);
+        let mut acc = 0;
+        for (v, c) in &self.hist {
+            acc += c;
+            if acc >= rank {
+                return *v;
+            }
+        }
+        0
+    }
+
+    fn summary(&self, out: &mut String, dur: f64, ls: &virtuose_api::LinkStats, overflow: u64) {
+        let n: u64 = self.hist.values().sum();
+        let sum: f64 = self.hist.iter().map(|(v, c)| *v as f64 * *c as f64).sum();
+        let guest_s = self.cycles as f64 * ls.period_us as f64 / 1e6;
+        let _ = writeln!(out, "requests: {}", ls.vpr_sent);
+        let _ = writeln!(out, "bench_answers: {}", ls.answers - self.start_answers);
+        let _ = writeln!(
+            out,
+            "request_rate_hz: {:.1}",
+            ls.vpr_sent as f64 / dur.max(1e-9)
+        );
+        let _ = writeln!(out, "rtt_samples: {n}");
+        let _ = writeln!(out, "rtt_overflow: {overflow}");
+        let _ = writeln!(
+            out,
+            "requests_not_echoed: {}",
+            ls.vpr_sent.saturating_sub(n)
+        );
+        let _ = writeln!(
+            out,
+            "rtt_us_min: {}",
+            self.hist.keys().next().copied().unwrap_or(0)
+        );
+        let _ = writeln!(
+            out,
+            "rtt_us_mean: {:.1}",
+            if n > 0 { sum / n as f64 } else { 0.0 }
+        );
+        for (k, q) in [("p50", 0.5), ("p99", 0.99), ("p99_9", 0.999)] {
+            let _ = writeln!(out, "rtt_us_{k}: {}", self.quantile(q));
+        }
+        let _ = writeln!(
+            out,
+            "rtt_us_max: {}",
+            self.hist.keys().next_back().copied().unwrap_or(0)
+        );
+        let _ = writeln!(out, "decode_errors: {}", ls.decode_errors);
+        let _ = writeln!(out, "cycle_first: {}", self.first_cycle.unwrap_or(0));
+        let _ = writeln!(out, "cycle_last: {}", self.last_cycle.unwrap_or(0));
+        let _ = writeln!(out, "guest_s: {guest_s:.3}");
+        let _ = writeln!(out, "guest_time_ratio: {:.4}", guest_s / dur.max(1e-9));
+        let _ = writeln!(
+            out,
+            "answer_rate_guest_hz: {:.1}",
+            if guest_s > 0.0 {
+                ls.answers as f64 / guest_s
+            } else {
+                0.0
+            }
+        );
+    }
+
+    fn hist_csv(&self) -> String {
+        let mut s = String::from("value_us,count\n");
+        for (v, c) in &self.hist {
+            let _ = writeln!(s, "{v},{c}");
+        }
+        s
+    }
 }
 
 /// Everything the page and the terminal show (one sample).
@@ -146,7 +303,10 @@ fn run(args: Args) -> Result<(), String> {
         _fake = None;
         args.server.clone()
     };
-    let dt = 1.0 / args.rate as f64;
+    let dt = match args.interval_us {
+        Some(us) => us as f64 / 1e6,
+        None => 1.0 / args.rate as f64,
+    };
     let mut world = World::default();
     let opts = Options {
         reply_timeout: Duration::from_millis(args.timeout_ms),
@@ -211,11 +371,34 @@ fn run(args: Args) -> Result<(), String> {
     let mut prev_a = world.a.pos;
     let mut prev_h: Option<V3> = None;
     let mut force = V3::zeros();
+    let mut bench = args.bench.then(|| {
+        vc.record_rtt(true);
+        Bench {
+            rate_csv: String::from(
+                "t_s,answers_per_s,answers,lost,requests,guest_time_ratio,answers_per_guest_s\n",
+            ),
+            ..Default::default()
+        }
+    });
+    if let Some(b) = bench.as_mut() {
+        b.row(0.0, &vc);
+        b.rate_csv
+            .truncate(b.rate_csv.find('\n').map_or(0, |i| i + 1));
+    }
+    let mut requests = 0u64;
 
     loop {
         let t = t0.elapsed().as_secs_f64();
-        if stop.load(Ordering::Relaxed) || (args.duration > 0.0 && t >= args.duration) {
+        if stop.load(Ordering::Relaxed)
+            || (args.duration > 0.0 && t >= args.duration)
+            || (args.samples > 0 && requests >= args.samples)
+        {
             break;
+        }
+        if let Some(b) = bench.as_mut() {
+            if t - b.last_t >= 1.0 {
+                b.row(t, &vc);
+            }
         }
         if let (Ok(h), Ok(f)) = (vc.get_position(), vc.get_force()) {
             handle = V3::new(h[0] as f64, h[1] as f64, h[2] as f64);
@@ -245,6 +428,7 @@ fn run(args: Args) -> Result<(), String> {
             handle_q[2],
             handle_q[3],
         ]);
+        requests += 1;
 
         // bookkeeping
         loops += 1;
@@ -327,7 +511,13 @@ fn run(args: Args) -> Result<(), String> {
     shared.done.store(true, Ordering::SeqCst);
 
     let dur = t0.elapsed().as_secs_f64();
+    // Let the last answers in (a round trip is a few ms), then account.
+    if let Some(b) = bench.as_mut() {
+        std::thread::sleep(Duration::from_millis(100));
+        b.row(t0.elapsed().as_secs_f64(), &vc);
+    }
     let ls = vc.link_stats();
+    let rtt_overflow = vc.rtt_overflow();
     let _ = vc.set_power_on(false);
     let _ = vc.close();
     let mut summary = String::new();
@@ -358,12 +548,21 @@ fn run(args: Args) -> Result<(), String> {
     let _ = writeln!(summary, "coupling_error_max_m: {err_max:.6}");
     let _ = writeln!(summary, "handle_travel_m: {handle_travel:.5}");
     let _ = writeln!(summary, "coupled_travel_m: {coupled_travel:.5}");
+    if let Some(b) = &bench {
+        b.summary(&mut summary, dur, &ls, rtt_overflow);
+    }
     print!("summary:\n{summary}");
     if let Some(dir) = &args.results {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         std::fs::write(dir.join("run.csv"), csv).map_err(|e| format!("{}: {e}", dir.display()))?;
         std::fs::write(dir.join("summary.txt"), &summary)
             .map_err(|e| format!("{}: {e}", dir.display()))?;
+        if let Some(b) = &bench {
+            std::fs::write(dir.join("rtt_hist.csv"), b.hist_csv())
+                .map_err(|e| format!("{}: {e}", dir.display()))?;
+            std::fs::write(dir.join("rate.csv"), &b.rate_csv)
+                .map_err(|e| format!("{}: {e}", dir.display()))?;
+        }
         println!("results in {}", dir.display());
     }
     Ok(())
