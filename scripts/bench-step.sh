@@ -69,7 +69,8 @@ if [ "$rt" = 1 ]; then
     ct_out=$(mktemp)
     lpids=""
     if [ "$load" = 1 ]; then
-      stress-ng --cpu 2 --vm 1 --vm-bytes 256M --io 1 --hdd 1 --hdd-bytes 64M --temp-path /tmp \
+      # Own session: stress-ng signals its process group when it ends.
+      setsid stress-ng --cpu 2 --vm 1 --vm-bytes 256M --io 1 --hdd 1 --hdd-bytes 64M --temp-path /tmp \
         --timeout $((rt_s + 5)) > /dev/null 2>&1 & lpids="$!"
       (end=$(( $(date +%s) + rt_s + 5 )); while [ "$(date +%s)" -lt "$end" ]; do hackbench -g 4 -l 200 -s 100 > /dev/null 2>&1 || break; done) &
       lpids="$lpids $!"
