@@ -13,6 +13,8 @@
 
 use std::path::{Path, PathBuf};
 
+use plotters::coord::ranged1d::ValueFormatter;
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -152,6 +154,40 @@ fn steps(points: &[(f64, f64)], floor: f64) -> Vec<(f64, f64)> {
     out
 }
 
+/// Mesh, one line per series (histograms as steps down to `floor`, values
+/// raised to `floor` for a log axis), legend.
+fn draw_series<'a, DB, Y>(
+    c: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, Y>>,
+    s: &Spec<'_>,
+    floor: f64,
+) -> Result<(), DynErr>
+where
+    DB: DrawingBackend + 'a,
+    DB::ErrorType: 'static,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    c.configure_mesh()
+        .x_desc(s.x_label)
+        .y_desc(s.y_label)
+        .draw()?;
+    for (k, se) in s.series.iter().enumerate() {
+        let col = COLOURS[k % COLOURS.len()];
+        let pts = if s.kind == Kind::Hist {
+            steps(&se.points, floor.max(0.0))
+        } else {
+            se.points.iter().map(|&(x, y)| (x, y.max(floor))).collect()
+        };
+        c.draw_series(LineSeries::new(pts, col.stroke_width(2)))?
+            .label(se.name.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(2)));
+    }
+    c.configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
+}
+
 fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, s: &Spec<'_>) -> Result<(), DynErr>
 where
     DB::ErrorType: 'static,
@@ -185,27 +221,7 @@ where
             x_lo..x_hi,
             (floor..(y_hi * 2.0).max(floor * 10.0)).log_scale(),
         )?;
-        c.configure_mesh()
-            .x_desc(s.x_label)
-            .y_desc(s.y_label)
-            .draw()?;
-        for (k, se) in s.series.iter().enumerate() {
-            let col = COLOURS[k % COLOURS.len()];
-            let pts = if s.kind == Kind::Hist {
-                steps(&se.points, floor)
-            } else {
-                se.points.iter().map(|&(x, y)| (x, y.max(floor))).collect()
-            };
-            c.draw_series(LineSeries::new(pts, col.stroke_width(2)))?
-                .label(se.name.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(2))
-                });
-        }
-        c.configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()?;
+        draw_series(&mut c, s, floor)?;
     } else {
         let y_lo = y_lo_data.min(0.0);
         let y_top = if y_hi > y_lo {
@@ -214,27 +230,7 @@ where
             y_lo + 1.0
         };
         let mut c = ch.build_cartesian_2d(x_lo..x_hi, y_lo..y_top)?;
-        c.configure_mesh()
-            .x_desc(s.x_label)
-            .y_desc(s.y_label)
-            .draw()?;
-        for (k, se) in s.series.iter().enumerate() {
-            let col = COLOURS[k % COLOURS.len()];
-            let pts = if s.kind == Kind::Hist {
-                steps(&se.points, 0.0)
-            } else {
-                se.points.clone()
-            };
-            c.draw_series(LineSeries::new(pts, col.stroke_width(2)))?
-                .label(se.name.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(2))
-                });
-        }
-        c.configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()?;
+        draw_series(&mut c, s, f64::NEG_INFINITY)?;
     }
     Ok(())
 }
