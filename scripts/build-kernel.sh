@@ -14,7 +14,7 @@ for a in "$@"; do
   case "$a" in
     --debug) variant=debug ;;
     --kasan) variant=kasan ;;
-    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,7p' "$0"; exit 0 ;;
     *) die "unknown argument '$a' (try --help)" ;;
   esac
 done

@@ -37,7 +37,7 @@ while [ $# -gt 0 ]; do
     --accel) accel=$2; shift ;;
     --background) background=1 ;;
     --period-us) period_us=$2; shift ;;
-    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
     --) shift; break ;;
     -*) die "unknown option $1 (see --help)" ;;
     *) break ;;
