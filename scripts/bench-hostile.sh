@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Hostile-input campaign (issue 6): hostile datagrams at the bridge WHILE a
-# legitimate client servos, in ONE QEMU guest (tcg-icount-sleep, as the link
-# tests). Two layers, every frame built by `hapdev hostile` with hap-core
+# legitimate client servos, in ONE QEMU guest (tcg-icount-sleep by default,
+# as the link tests; --sleep-off for tcg-icount, where a loaded host cannot
+# make the servo miss: the reference run, Documentation/reliability.md). Two
+# layers, every frame built by `hapdev hostile` with hap-core
 # (encoder, CRC-32C, frame table) and tallied by the counter it must land in:
 #
 #  net  N datagrams from the host at the bridge (proto_interface) from a
@@ -44,7 +46,9 @@
 #
 # It ASSERTS correctness (a campaign may; timing is never asserted): no
 # oops/WARN/BUG in the guest log, no deadline miss and no fail-safe, every
-# hostile datagram / frame in the counter it belongs to (exact counts), the
+# hostile datagram the bridge received and every device frame in the counter
+# it belongs to (exact counts; datagrams lost on the way, before the guest's
+# UDP stack, are reported with the guest's UDP counters), the
 # module saw only the legitimate frames plus the device-level ones, one
 # session all along, and the legitimate client still coupled. Prints
 # "N passed, N failed"; exit status 0 iff all passed.
