@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Hostile-input campaign (issue 6): hostile datagrams at the bridge WHILE a
-# legitimate client servos, in ONE QEMU guest (tcg-icount-sleep, as the link
-# tests). Two layers, every frame built by `hapdev hostile` with hap-core
+# legitimate client servos, in ONE QEMU guest (tcg-icount-sleep by default,
+# as the link tests; --sleep-off for tcg-icount, where a loaded host cannot
+# make the servo miss: the reference run, Documentation/reliability.md). Two
+# layers, every frame built by `hapdev hostile` with hap-core
 # (encoder, CRC-32C, frame table) and tallied by the counter it must land in:
 #
 #  net  N datagrams from the host at the bridge (proto_interface) from a
@@ -44,7 +46,9 @@
 #
 # It ASSERTS correctness (a campaign may; timing is never asserted): no
 # oops/WARN/BUG in the guest log, no deadline miss and no fail-safe, every
-# hostile datagram / frame in the counter it belongs to (exact counts), the
+# hostile datagram the bridge received and every device frame in the counter
+# it belongs to (exact counts; datagrams lost on the way, before the guest's
+# UDP stack, are reported with the guest's UDP counters), the
 # module saw only the legitimate frames plus the device-level ones, one
 # session all along, and the legitimate client still coupled. Prints
 # "N passed, N failed"; exit status 0 iff all passed.
@@ -133,18 +137,39 @@ if dev_count:
 # Bridge: every hostile datagram in its reject counter, exactly. The
 # legitimate client's datagrams are all valid and from the pinned source,
 # so any other reject would be a hostile datagram too.
+# Datagrams can be lost between the host and the bridge (QEMU's user-mode
+# network, the guest's socket buffer: see guest_udp.txt); those never reach
+# a counter. So: nothing the bridge received goes uncounted, no class gets
+# more than was sent of it, and the transit loss is reported.
+check("bridge: every datagram received is counted (received == forwarded + rejected + write errors)",
+      n(b, "received") == (n(b, "forwarded") or 0) + (n(b, "rejected") or 0) + (n(b, "write_errors") or 0),
+      f"{n(b, 'received')} vs {n(b, 'forwarded')} + {n(b, 'rejected')} + {n(b, 'write_errors')}")
+lost_net = 0
 for r in ("rejected_oversize", "rejected_undersize", "rejected_malformed", "rejected_stray_source"):
     want, got = n(net, f"expect.{r}", 0), n(b, r)
-    check(f"bridge {r} == hostile datagrams sent of that class", got == want, f"{got} vs {want}")
+    lost_net += want - (got or 0)
+    check(f"bridge {r} <= hostile datagrams sent of that class", got is not None and got <= want,
+          f"{got} of {want}, {100.0 * (want - (got or 0)) / max(want, 1):.2f} % not received")
+udp = {}
+try:
+    lines = [l.split() for l in open(f"{out}/guest_udp.txt") if l.startswith("Udp:")]
+    if len(lines) >= 2:
+        udp = dict(zip(lines[0][1:], lines[1][1:]))
+except FileNotFoundError:
+    pass
+print(f"# transit: {lost_net} of {count} hostile datagrams ({100.0 * lost_net / count:.3f} %) never reached the bridge; "
+      f"guest UDP InDatagrams {udp.get('InDatagrams', '?')}, RcvbufErrors {udp.get('RcvbufErrors', '?')}, InErrors {udp.get('InErrors', '?')}")
 # The only other reject: the client's own CloseSession retransmitted after
 # the first one closed the session (its ack was slow): rejected_no_session,
 # at most the client's 4 attempts.
 late = n(b, "rejected_no_session", 0)
 check("bridge rejected_no_session <= 3 (the client's late CloseSession retransmissions only)", late <= 3, str(late))
-check("bridge rejected total == hostile datagrams sent + those", n(b, "rejected") == count + late, f"{n(b, 'rejected')} vs {count} + {late}")
-legit = (n(b, "received") or 0) - count - late
-check("bridge forwarded == the legitimate datagrams (received - hostile - late closes)", n(b, "forwarded") == legit and n(b, "write_errors") == 0,
-      f"forwarded {n(b, 'forwarded')}, received {n(b, 'received')} - {count} - {late} = {legit}, write errors {n(b, 'write_errors')}")
+check("bridge rejected total == hostile datagrams received + those", n(b, "rejected") == count - lost_net + late,
+      f"{n(b, 'rejected')} vs {count} - {lost_net} + {late}")
+check("bridge: no write error", n(b, "write_errors") == 0, str(n(b, "write_errors")))
+# That no hostile datagram was forwarded is shown by the module: its reject
+# counters hold exactly the device-level tallies (a forwarded wrong-session,
+# NaN, replayed... frame would add to one of them), and below.
 # Module: the device-level frames in their counters, exactly.
 names = set(k for k in m if k.startswith("rejected.") or k == "rtf_in.bad_length")
 for k in sorted(names | {k[len("expect."):] for k in dev if k.startswith("expect.")}):
@@ -239,6 +264,7 @@ between HAP-STATS0 > "$out/hap_stats_before.txt"
 between HAP-STATS > "$out/hap_stats.txt"
 between HAP-PROTO > "$out/proto_interface.txt"
 between HAP-HOSTILE-DEV > "$out/hostile_dev.txt"
+between HAP-UDP > "$out/guest_udp.txt"
 
 echo "$hrc" "$crc" "$count" "$dev_count" "$rate" "$((t_ready - t_boot))" "$((t_client - t_ready))" \
   "$((t_end - t_boot))" "$load0" "$load1" "$nice_n" "$shift_s" > "$out/params"

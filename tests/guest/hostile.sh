@@ -49,6 +49,7 @@ done
 expect "the client closed its session" "$(stat_value session)" = 0
 usleep 500000
 echo "HAP-STATS-BEGIN"; cat /dev/hap_stats; echo "HAP-STATS-END"
+echo "HAP-UDP-BEGIN"; grep '^Udp:' /proc/net/snmp; echo "HAP-UDP-END"
 kill -USR1 "$(pidof proto_interface)" 2>/dev/null; usleep 300000
 echo "HAP-PROTO-BEGIN"; cat /run/proto_interface.stats 2>/dev/null; echo "HAP-PROTO-END"
 check "launch script stops cleanly" hapticctrl.sh stop
