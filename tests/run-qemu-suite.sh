@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
 # Run the QEMU suite: every tests/qemu/NN-*.sh boots its own guest with the
 # options on its "# qemu:" line. Prints per-test and total "N passed, N failed".
-#   tests/run-qemu-suite.sh [--debug] [PATTERN]
+#   tests/run-qemu-suite.sh [--debug | --kasan] [PATTERN]
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 variant_flag=""; pattern=""
 for a in "$@"; do
   case "$a" in
     --debug) variant_flag=--debug ;;
+    --kasan) variant_flag=--kasan ;;
     *) pattern=$a ;;
   esac
 done
@@ -33,6 +34,6 @@ for t in "$ROOT"/tests/qemu/[0-9][0-9]-*.sh; do
   [ "$rc" = 0 ] || failed_tests+=("$name")
   rm -f "$out"
 done
-echo "=== QEMU suite${variant_flag:+ (debug kernel)}: ${#failed_tests[@]} test file(s) failed${failed_tests[*]:+: ${failed_tests[*]}}"
+echo "=== QEMU suite${variant_flag:+ (${variant_flag#--} kernel)}: ${#failed_tests[@]} test file(s) failed${failed_tests[*]:+: ${failed_tests[*]}}"
 echo "qemu: $total_pass passed, $total_fail failed"
 [ "$total_fail" = 0 ] && [ ${#failed_tests[@]} = 0 ]
