@@ -18,7 +18,7 @@
 # deterministic COSTS, not hardware latencies. The report names the mode.
 #
 # Default N = 10^5 per phase (about 8 min wall here); --long = 10^6 per
-# phase (the zero-miss proof; about 70-90 min wall here, not for CI).
+# phase (the zero-miss proof; 105 min wall here on a shared host, not for CI).
 # Output: build/bench/rt-<stamp>/ (report.txt, guest.log, *.csv, *.png/svg).
 # Installs the benchmark tools first (scripts/setup-toolchain.sh --bench).
 set -euo pipefail

@@ -12,7 +12,7 @@
 # below SERVO's 80; 0: SCHED_OTHER), and the test client (virtuose_demo,
 # headless, RATE Hz, default 1000) on the host coupled through it, until the
 # module has run N cycles (default 10^6 = 1000 s of guest time at 1 ms:
-# about 20-30 min wall here with shift 2). Then the client stops, and the module's
+# 45 min wall here on a shared host with shift 2). Then the client stops, and the module's
 # statistics and histograms, the bridge's counters and the client's summary
 # are reported.
 #
