@@ -537,10 +537,23 @@ fn encode_inner(
     if body.checked_add(CRC_LEN) != Some(len) {
         return Err(XdrError::Short);
     }
-    let crc = crc32c(out.get(..body).ok_or(XdrError::Short)?);
-    let mut e = Encoder::new(out.get_mut(body..).ok_or(XdrError::Short)?);
-    e.put_u32(crc)?;
+    if !seal_crc(out.get_mut(..len).ok_or(XdrError::Short)?) {
+        return Err(XdrError::Short);
+    }
     Ok(len)
+}
+
+/// Write the frame's CRC-32C trailer: the last `CRC_LEN` bytes of `frame`
+/// become the big-endian CRC of all the bytes before them (what [`decode`]
+/// checks). For tools and tests that build or mutate raw frames. Returns
+/// false, changing nothing, if `frame` is shorter than the trailer.
+pub fn seal_crc(frame: &mut [u8]) -> bool {
+    let Some(body_len) = frame.len().checked_sub(CRC_LEN) else {
+        return false;
+    };
+    let (body, trailer) = frame.split_at_mut(body_len);
+    trailer.copy_from_slice(&crc32c(body).to_be_bytes());
+    true
 }
 
 /// Encode `frame` with header `h` into `out`; returns the frame length

@@ -28,11 +28,10 @@ use std::time::{Duration, Instant};
 
 use hap_core::{
     config::{CommandType, VirtualObjectParams},
-    crc::crc32c,
     fixed::{Fx, Pose, Quat, Twist, Vec3, Wrench},
     protocol::{
-        decode, encode, expected_len, Answer, DecodeError, Frame, FrameHeader, FrameType, CRC_LEN,
-        HEADER_LEN, MAX_FRAME_LEN, MIN_FRAME_LEN,
+        decode, encode, expected_len, seal_crc, Answer, DecodeError, Frame, FrameHeader, FrameType,
+        CRC_LEN, HEADER_LEN, MAX_FRAME_LEN, MIN_FRAME_LEN,
     },
 };
 
@@ -74,9 +73,7 @@ fn enc(h: &FrameHeader, f: &Frame) -> Vec<u8> {
 /// Recompute the trailing CRC-32C (hap-core's) after a mutation.
 fn fix_crc(b: &mut [u8]) {
     if b.len() >= MIN_FRAME_LEN {
-        let n = b.len() - CRC_LEN;
-        let c = crc32c(&b[..n]);
-        b[n..].copy_from_slice(&c.to_be_bytes());
+        seal_crc(b);
     }
 }
 

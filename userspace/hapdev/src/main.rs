@@ -247,8 +247,7 @@ fn cmd_send(cli: &Cli, session: u16, seq: u32, ack: bool, what: &[String]) -> Re
                     b[3] = ty as u8;
                     if i % 4 == 0 {
                         // Correct CRC over random payload: decoding must reject the values.
-                        let c = hap_core::crc::crc32c(&b[..len - 4]);
-                        b[len - 4..].copy_from_slice(&c.to_be_bytes());
+                        hap_core::protocol::seal_crc(&mut b);
                     }
                     b
                 })

@@ -1,7 +1,8 @@
 //! The property both fuzz harnesses check on one input.
 
-use hap_core::crc::crc32c;
-use hap_core::protocol::{decode, encode, expected_len, CRC_LEN, MAGIC, MAX_FRAME_LEN, VERSION};
+use hap_core::protocol::{
+    decode, encode, expected_len, seal_crc, CRC_LEN, MAGIC, MAX_FRAME_LEN, VERSION,
+};
 
 /// Decode `data`; it must not panic, and a frame it accepts must re-encode
 /// to a frame that decodes to the same thing and has the advertised length.
@@ -29,9 +30,7 @@ pub fn with_valid_crc(data: &[u8]) -> Vec<u8> {
         v[0] = MAGIC[0];
         v[1] = MAGIC[1];
         v[2] = VERSION;
-        let n = v.len();
-        let c = crc32c(&v[..n - CRC_LEN]);
-        v[n - CRC_LEN..].copy_from_slice(&c.to_be_bytes());
+        seal_crc(&mut v);
     }
     v
 }

@@ -2,8 +2,7 @@
 //! through the check; otherwise runs N (default 1_000_000) pseudo-random
 //! inputs, half of them valid frames with random mutations and a fixed CRC.
 
-use hap_core::crc::crc32c;
-use hap_core::protocol::{FrameType, MAGIC, VERSION};
+use hap_core::protocol::{seal_crc, FrameType, MAGIC, VERSION};
 
 fn xorshift(s: &mut u64) -> u64 {
     *s ^= *s << 13;
@@ -44,9 +43,7 @@ fn main() {
                 data[4] = 0;
                 data[5] = 0;
             }
-            let n = data.len();
-            let c = crc32c(&data[..n - 4]);
-            data[n - 4..].copy_from_slice(&c.to_be_bytes());
+            seal_crc(&mut data);
         }
         hap_core_fuzz::check(&data);
     }
