@@ -75,7 +75,6 @@ impl Shared {
     }
 }
 
-/// Write the stats file atomically (temp file + rename).
 /// Run the calling process's threads (this one and those it starts later,
 /// which inherit it) under `SCHED_FIFO` at `priority` (1..=99), below the
 /// module's kernel tasks (SERVO 80, CLOCK 99) when `priority` < 80: under a
@@ -101,6 +100,7 @@ pub fn set_fifo_priority(priority: i32) -> std::io::Result<()> {
     }
 }
 
+/// Write the stats file atomically (temp file + rename).
 pub fn write_stats_file(path: &Path, text: &str) -> std::io::Result<()> {
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".tmp");
