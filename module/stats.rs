@@ -190,16 +190,23 @@ fn render(sh: &Shared, out: &mut [u8]) -> usize {
     n + w.len()
 }
 
+/// The text a read-only device shows for one open: `render` writes at most
+/// `max` bytes and returns how many.
+fn snapshot(max: usize, render: impl FnOnce(&mut [u8]) -> usize) -> Result<KVVec<u8>> {
+    let mut text = KVVec::with_capacity(max, GFP_KERNEL)?;
+    text.resize(max, 0, GFP_KERNEL)?;
+    let n = render(&mut text);
+    text.truncate(n);
+    Ok(text)
+}
+
 #[vtable]
 impl MiscDevice for StatsDevice {
     type Ptr = KBox<Self>;
 
     fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
         let sh = shared::get()?;
-        let mut text = KVVec::with_capacity(STATS_TEXT_MAX, GFP_KERNEL)?;
-        text.resize(STATS_TEXT_MAX, 0, GFP_KERNEL)?;
-        let n = render(&sh, &mut text);
-        text.truncate(n);
+        let text = snapshot(STATS_TEXT_MAX, |out| render(&sh, out))?;
         Ok(KBox::new(StatsDevice { text }, GFP_KERNEL)?)
     }
 
@@ -239,10 +246,7 @@ impl MiscDevice for HistDevice {
             overflow: overflow.get(i).copied().unwrap_or(0),
         };
         let series = [view(0), view(1), view(2)];
-        let mut text = KVVec::with_capacity(HIST_RENDER_MAX, GFP_KERNEL)?;
-        text.resize(HIST_RENDER_MAX, 0, GFP_KERNEL)?;
-        let n = render_histograms(&series, &mut text).len;
-        text.truncate(n);
+        let text = snapshot(HIST_RENDER_MAX, |out| render_histograms(&series, out).len)?;
         Ok(KBox::new(HistDevice { text }, GFP_KERNEL)?)
     }
 
