@@ -58,22 +58,20 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 ROOT=$HAP_ROOT
 
 report_only=""; count=100000; dev_count=20000; rate=1000; port=47320; out=""; period_us=1000; nice_n=0; shift_s=2; client_iv=3000; qmode=--icount-sleep
-usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
-num() { [[ "$2" =~ ^[0-9]+$ ]] || die "$1 needs a non-negative integer, got '$2' (see --help)"; }
 while [ $# -gt 0 ]; do
   case "$1" in
-    --count) [ $# -ge 2 ] || die "--count needs a value"; num "$1" "$2"; count=$2; shift ;;
-    --dev-count) [ $# -ge 2 ] || die "--dev-count needs a value"; num "$1" "$2"; dev_count=$2; shift ;;
-    --client-interval-us) [ $# -ge 2 ] || die "--client-interval-us needs a value"; num "$1" "$2"; client_iv=$2; shift ;;
-    --rate) [ $# -ge 2 ] || die "--rate needs a value"; num "$1" "$2"; rate=$2; shift ;;
-    --period-us) [ $# -ge 2 ] || die "--period-us needs a value"; num "$1" "$2"; period_us=$2; shift ;;
+    --count) [ $# -ge 2 ] || die "--count needs a value"; hap_uint "$1" "$2"; count=$2; shift ;;
+    --dev-count) [ $# -ge 2 ] || die "--dev-count needs a value"; hap_uint "$1" "$2"; dev_count=$2; shift ;;
+    --client-interval-us) [ $# -ge 2 ] || die "--client-interval-us needs a value"; hap_uint "$1" "$2"; client_iv=$2; shift ;;
+    --rate) [ $# -ge 2 ] || die "--rate needs a value"; hap_uint "$1" "$2"; rate=$2; shift ;;
+    --period-us) [ $# -ge 2 ] || die "--period-us needs a value"; hap_uint "$1" "$2"; period_us=$2; shift ;;
     --sleep-off) qmode=--icount ;;
     --report) [ $# -ge 2 ] || die "--report needs a value"; report_only=$2; shift ;;
-    --port) [ $# -ge 2 ] || die "--port needs a value"; num "$1" "$2"; port=$2; shift ;;
+    --port) [ $# -ge 2 ] || die "--port needs a value"; hap_uint "$1" "$2"; port=$2; shift ;;
     --out) [ $# -ge 2 ] || die "--out needs a value"; out=$2; shift ;;
-    --icount-shift) [ $# -ge 2 ] || die "--icount-shift needs a value"; num "$1" "$2"; shift_s=$2; shift ;;
+    --icount-shift) [ $# -ge 2 ] || die "--icount-shift needs a value"; hap_uint "$1" "$2"; shift_s=$2; shift ;;
     --nice) [ $# -ge 2 ] || die "--nice needs a value"; [[ "$2" =~ ^-?[0-9]+$ ]] || die "--nice needs an integer, got '$2'"; nice_n=$2; shift ;;
-    -h|--help) usage; exit 0 ;;
+    -h|--help) hap_usage; exit 0 ;;
     *) die "unknown argument '$1' (see --help)" ;;
   esac
   shift

@@ -58,22 +58,20 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 ROOT=$HAP_ROOT
 
 samples=100000; interval_us=1000; period_us=1000; port=47310; out=""; plot=1; nice_n=0; shift_s=2; max_seconds=0; qmode=--icount-sleep
-usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
-num() { [[ "$2" =~ ^[0-9]+$ ]] || die "$1 needs a non-negative integer, got '$2' (see --help)"; }
 while [ $# -gt 0 ]; do
   case "$1" in
-    --samples) [ $# -ge 2 ] || die "--samples needs a value"; num "$1" "$2"; samples=$2; shift ;;
+    --samples) [ $# -ge 2 ] || die "--samples needs a value"; hap_uint "$1" "$2"; samples=$2; shift ;;
     --long) samples=1000000 ;;
-    --interval-us) [ $# -ge 2 ] || die "--interval-us needs a value"; num "$1" "$2"; interval_us=$2; shift ;;
-    --period-us) [ $# -ge 2 ] || die "--period-us needs a value"; num "$1" "$2"; period_us=$2; shift ;;
-    --port) [ $# -ge 2 ] || die "--port needs a value"; num "$1" "$2"; port=$2; shift ;;
+    --interval-us) [ $# -ge 2 ] || die "--interval-us needs a value"; hap_uint "$1" "$2"; interval_us=$2; shift ;;
+    --period-us) [ $# -ge 2 ] || die "--period-us needs a value"; hap_uint "$1" "$2"; period_us=$2; shift ;;
+    --port) [ $# -ge 2 ] || die "--port needs a value"; hap_uint "$1" "$2"; port=$2; shift ;;
     --out) [ $# -ge 2 ] || die "--out needs a value"; out=$2; shift ;;
     --no-plot) plot=0 ;;
     --sleep-off) qmode=--icount ;;
-    --max-seconds) [ $# -ge 2 ] || die "--max-seconds needs a value"; num "$1" "$2"; max_seconds=$2; shift ;;
-    --icount-shift) [ $# -ge 2 ] || die "--icount-shift needs a value"; num "$1" "$2"; shift_s=$2; shift ;;
+    --max-seconds) [ $# -ge 2 ] || die "--max-seconds needs a value"; hap_uint "$1" "$2"; max_seconds=$2; shift ;;
+    --icount-shift) [ $# -ge 2 ] || die "--icount-shift needs a value"; hap_uint "$1" "$2"; shift_s=$2; shift ;;
     --nice) [ $# -ge 2 ] || die "--nice needs a value"; [[ "$2" =~ ^-?[0-9]+$ ]] || die "--nice needs an integer, got '$2'"; nice_n=$2; shift ;;
-    -h|--help) usage; exit 0 ;;
+    -h|--help) hap_usage; exit 0 ;;
     *) die "unknown argument '$1' (see --help)" ;;
   esac
   shift

@@ -24,8 +24,9 @@
 set -euo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
 ROOT=$(cd "$HERE/.." && pwd)
+# shellcheck source=scripts/lib.sh
+. "$HERE/lib.sh"
 cycles=100000; period_us=1000; use_ct=1; busybox_load=0; out="$ROOT/build/bench"
-usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --cycles) cycles=${2:?--cycles needs a number}; shift ;;
@@ -34,7 +35,7 @@ while [ $# -gt 0 ]; do
     --no-cyclictest) use_ct=0 ;;
     --busybox-load) busybox_load=1 ;;
     --out) out=${2:?--out needs a directory}; shift ;;
-    -h|--help) usage; exit 0 ;;
+    -h|--help) hap_usage; exit 0 ;;
     *) echo "bench-rt: unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -50,8 +51,6 @@ mkdir -p "$dir"
 log="$dir/guest.log"
 report="$dir/report.txt"
 
-# shellcheck source=scripts/lib.sh
-. "$HERE/lib.sh"
 HAP_EXTRAS=()
 ct_arg=""
 if [ "$use_ct" = 1 ]; then

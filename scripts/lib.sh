@@ -16,6 +16,11 @@ export PATH="$HAP_TOOLS/bin:$PATH"
 # warnings, lockdep and atomic-sleep splats, sanitizers, Rust panics.
 HAP_SPLAT_RE='Kernel panic|Oops|WARNING:|BUG:|Call Trace|possible (circular|recursive) locking|sleeping function called from invalid context|general protection fault|KASAN|UBSAN|rust_panic|panicked at'
 
+# hap_usage: print the calling script's header comment (its --help).
+hap_usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
+# hap_uint OPTION VALUE: die unless VALUE is a non-negative integer.
+hap_uint() { [[ "$2" =~ ^[0-9]+$ ]] || die "$1 needs a non-negative integer, got '$2' (see --help)"; }
+
 log() { printf '[hapticctrl %s] %s\n' "$(date +%H:%M:%S)" "$*" >&2; }
 die() { printf '[hapticctrl] error: %s\n' "$*" >&2; exit 1; }
 

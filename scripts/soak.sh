@@ -25,7 +25,6 @@ HERE=$(cd "$(dirname "$0")" && pwd)
 . "$HERE/lib.sh"
 ROOT=$HAP_ROOT
 cycles=1000000; period_us=1000; load=load; rate=1000; prio=50; shift_s=2; out="$ROOT/build/bench"
-usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --cycles) cycles=${2:?--cycles needs a number}; shift ;;
@@ -35,7 +34,7 @@ while [ $# -gt 0 ]; do
     --bridge-prio) prio=${2:?--bridge-prio needs a number}; shift ;;
     --icount-shift) shift_s=${2:?--icount-shift needs a number}; shift ;;
     --out) out=${2:?--out needs a directory}; shift ;;
-    -h|--help) usage; exit 0 ;;
+    -h|--help) hap_usage; exit 0 ;;
     *) echo "soak: unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
   shift
