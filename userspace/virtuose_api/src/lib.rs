@@ -30,6 +30,7 @@
 pub mod conv;
 pub mod fake_peer;
 pub mod ffi;
+pub mod kin;
 
 use std::collections::HashMap;
 use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
@@ -77,7 +78,8 @@ pub enum VirtError {
 }
 
 impl VirtError {
-    /// Stable integer code (C ABI).
+    /// Stable integer code of this crate (the C ABI reports VirtuoseAPI's
+    /// `VIRT_E_*` codes instead, see `ffi`).
     pub fn code(&self) -> i32 {
         match self {
             VirtError::InvalidAddress(_) => 1,
@@ -458,6 +460,11 @@ impl VirtContext {
     /// Change timeouts and retries.
     pub fn set_options(&mut self, opts: Options) {
         self.opts = opts;
+    }
+
+    /// Timeouts and retries in use.
+    pub fn options(&self) -> Options {
+        self.opts
     }
 
     fn check_open(&self) -> Result<()> {
