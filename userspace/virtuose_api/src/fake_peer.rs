@@ -369,15 +369,18 @@ fn run(
                     s.last_vo_pose = [p[0], p[1], p[2], o[0], o[1], o[2], o[3]];
                     if s.answers_sent > 0 {
                         let h = s.last_handle_position;
-                        let d = ((p[0] - h[0]).powi(2) + (p[1] - h[1]).powi(2) + (p[2] - h[2]).powi(2))
-                            .sqrt();
+                        let d =
+                            ((p[0] - h[0]).powi(2) + (p[1] - h[1]).powi(2) + (p[2] - h[2]).powi(2))
+                                .sqrt();
                         if d > s.max_vo_offset {
                             s.max_vo_offset = d;
                         }
                     }
                 }
                 if !cfg.answer_every_period {
-                    answer(&mut seq, session, src, &mut out, &last_vpr, powered, attached);
+                    answer(
+                        &mut seq, session, src, &mut out, &last_vpr, powered, attached,
+                    );
                 }
             }
             Frame::SetCommandType(t) => {

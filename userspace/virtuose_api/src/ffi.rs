@@ -518,6 +518,7 @@ pub unsafe extern "C" fn virtGetControlerVersion(
     major: *mut c_int,
     minor: *mut c_int,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |_| {
             put(major, hap_core::protocol::VERSION as c_int)?;
@@ -536,6 +537,7 @@ pub unsafe extern "C" fn virtGetDeviceID(
     device_type: *mut c_int,
     serial: *mut c_int,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let id = c.session().session_id();
@@ -619,6 +621,7 @@ fn generic(code: c_int) -> &'static CStr {
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetTimeoutValue(vc: *mut c_void, t: c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             if !(t > 0.0 && t.is_finite() && t <= 3600.0) {
@@ -644,6 +647,7 @@ pub unsafe extern "C" fn virtSetTimeoutValue(vc: *mut c_void, t: c_float) -> c_i
 /// `vc` is NULL or live; `t` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetTimeoutValue(vc: *mut c_void, t: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(t, c.state().timeout_s)) }
 }
 
@@ -653,6 +657,7 @@ pub unsafe extern "C" fn virtGetTimeoutValue(vc: *mut c_void, t: *mut c_float) -
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetDebugFlags(vc: *mut c_void, flag: c_ushort) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             c.state().debug_flags = flag;
@@ -667,6 +672,7 @@ pub unsafe extern "C" fn virtSetDebugFlags(vc: *mut c_void, flag: c_ushort) -> c
 /// `vc` is NULL or live; `name` is NULL or a NUL-terminated string.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetOutputFile(vc: *mut c_void, name: *mut c_char) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             if name.is_null() {
@@ -696,6 +702,7 @@ extern "C" {
 /// `vc` is NULL or live; `file` is NULL or an open `FILE *`.
 #[no_mangle]
 pub unsafe extern "C" fn virtDisplayHardwareStatus(vc: *mut c_void, file: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             if file.is_null() {
@@ -744,6 +751,7 @@ fn on(bit: u32) -> &'static str {
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetTimeStep(vc: *mut c_void, step: c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             c.session().set_time_step(step)?;
@@ -757,6 +765,7 @@ pub unsafe extern "C" fn virtSetTimeStep(vc: *mut c_void, step: c_float) -> c_in
 /// `vc` is NULL or live; `step` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetTimeStep(vc: *mut c_void, step: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(step, c.state().time_step)) }
 }
 
@@ -768,6 +777,7 @@ pub unsafe extern "C" fn virtGetTimeStep(vc: *mut c_void, step: *mut c_float) ->
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetCommandType(vc: *mut c_void, ty: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let t = hap_command(ty)?;
@@ -787,6 +797,7 @@ pub unsafe extern "C" fn virtSetCommandType(vc: *mut c_void, ty: c_int) -> c_int
 /// `vc` is NULL or live; `ty` is NULL or points to a writable VirtCommandType.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetCommandType(vc: *mut c_void, ty: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(ty, c.state().command)) }
 }
 
@@ -797,6 +808,7 @@ pub unsafe extern "C" fn virtGetCommandType(vc: *mut c_void, ty: *mut c_int) -> 
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetIndexingMode(vc: *mut c_void, mode: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let m = match mode {
@@ -823,6 +835,7 @@ pub unsafe extern "C" fn virtSetIndexingMode(vc: *mut c_void, mode: c_int) -> c_
 /// `vc` is NULL or live; `mode` is NULL or points to a writable VirtIndexingType.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetIndexingMode(vc: *mut c_void, mode: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(mode, c.state().indexing)) }
 }
 
@@ -830,6 +843,7 @@ pub unsafe extern "C" fn virtGetIndexingMode(vc: *mut c_void, mode: *mut c_int) 
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetForceFactor(vc: *mut c_void, k: c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             c.session().set_force_factor(k)?;
@@ -843,6 +857,7 @@ pub unsafe extern "C" fn virtSetForceFactor(vc: *mut c_void, k: c_float) -> c_in
 /// `vc` is NULL or live; `k` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetForceFactor(vc: *mut c_void, k: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(k, c.state().frames.force_factor as f32)) }
 }
 
@@ -850,6 +865,7 @@ pub unsafe extern "C" fn virtGetForceFactor(vc: *mut c_void, k: *mut c_float) ->
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetSpeedFactor(vc: *mut c_void, k: c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             c.session().set_speed_factor(k)?;
@@ -863,6 +879,7 @@ pub unsafe extern "C" fn virtSetSpeedFactor(vc: *mut c_void, k: c_float) -> c_in
 /// `vc` is NULL or live; `k` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetSpeedFactor(vc: *mut c_void, k: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(k, c.state().frames.speed_factor as f32)) }
 }
 
@@ -883,6 +900,7 @@ fn normalized(p: [f32; 7]) -> [f32; 7] {
 /// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetBaseFrame(vc: *mut c_void, pos: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let p = read_arr::<7>(pos)?;
@@ -897,6 +915,7 @@ pub unsafe extern "C" fn virtSetBaseFrame(vc: *mut c_void, pos: *const c_float) 
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetBaseFrame(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| write_arr(pos, c.state().frames.base)) }
 }
 
@@ -904,6 +923,7 @@ pub unsafe extern "C" fn virtGetBaseFrame(vc: *mut c_void, pos: *mut c_float) ->
 /// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetObservationFrame(vc: *mut c_void, pos: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let p = read_arr::<7>(pos)?;
@@ -918,6 +938,7 @@ pub unsafe extern "C" fn virtSetObservationFrame(vc: *mut c_void, pos: *const c_
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetObservationFrame(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| write_arr(pos, c.state().observation)) }
 }
 
@@ -927,6 +948,7 @@ pub unsafe extern "C" fn virtGetObservationFrame(vc: *mut c_void, pos: *mut c_fl
 /// `vc` is NULL or live; `n` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetNbAxes(vc: *mut c_void, n: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |_| put(n, kin::NB_AXES as c_int)) }
 }
 
@@ -936,6 +958,7 @@ pub unsafe extern "C" fn virtGetNbAxes(vc: *mut c_void, n: *mut c_int) -> c_int 
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetPowerOn(vc: *mut c_void, power: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| Ok(c.session().set_power_on(power != 0)?)) }
 }
 
@@ -943,6 +966,7 @@ pub unsafe extern "C" fn virtSetPowerOn(vc: *mut c_void, power: c_int) -> c_int 
 /// `vc` is NULL or live; `power` is NULL or points to a writable int.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetPowerOn(vc: *mut c_void, power: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(power, c.read(|v| v.get_power_on())? as c_int)) }
 }
 
@@ -952,6 +976,7 @@ pub unsafe extern "C" fn virtGetPowerOn(vc: *mut c_void, power: *mut c_int) -> c
 /// `vc` is NULL or live; `dead_man` is NULL or points to a writable int.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetDeadMan(vc: *mut c_void, dead_man: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             put(dead_man, c.read(|v| v.get_dead_man())? as c_int)
@@ -966,6 +991,7 @@ pub unsafe extern "C" fn virtGetDeadMan(vc: *mut c_void, dead_man: *mut c_int) -
 /// `vc` is NULL or live; `estop` is NULL or points to a writable int.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetEmergencyStop(vc: *mut c_void, estop: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let pressed = c.read(|v| v.get_emergency_stop())?;
@@ -983,6 +1009,7 @@ pub unsafe extern "C" fn virtGetEmergencyStop(vc: *mut c_void, estop: *mut c_int
 /// `vc` is NULL or live; `alarm` is NULL or points to a writable unsigned int.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetAlarm(vc: *mut c_void, alarm_out: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let mut a = c.read(|v| v.get_alarm())?;
@@ -1006,6 +1033,7 @@ pub unsafe extern "C" fn virtGetAlarm(vc: *mut c_void, alarm_out: *mut c_uint) -
 /// `vc` is NULL or live; `error` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetFailure(vc: *mut c_void, error: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let a = c.read(|v| v.get_alarm())?;
@@ -1021,6 +1049,7 @@ pub unsafe extern "C" fn virtGetFailure(vc: *mut c_void, error: *mut c_uint) -> 
 /// `vc` is NULL or live; `bounds` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtIsInBounds(vc: *mut c_void, bounds: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(bounds, kin::bounds(&c.joints()?))) }
 }
 
@@ -1041,6 +1070,7 @@ fn button_bit(n: c_int) -> R<u32> {
 /// `vc` is NULL or live; `state` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetButton(vc: *mut c_void, n: c_int, state: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let bit = button_bit(n)?;
@@ -1057,6 +1087,7 @@ pub unsafe extern "C" fn virtGetButton(vc: *mut c_void, n: c_int, state: *mut c_
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtWaitPressButton(vc: *mut c_void, n: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let bit = button_bit(n)?;
@@ -1101,6 +1132,7 @@ pub unsafe extern "C" fn virtAttachVO(
     mass: c_float,
     mxmymz: *const c_float,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let i = read_arr::<3>(mxmymz)?;
@@ -1121,6 +1153,7 @@ pub unsafe extern "C" fn virtAttachVOAvatar(
     mass: c_float,
     mxmymz: *const c_float,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { virtAttachVO(vc, mass, mxmymz) }
 }
 
@@ -1128,6 +1161,7 @@ pub unsafe extern "C" fn virtAttachVOAvatar(
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtDetachVO(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             c.session().detach_vo()?;
@@ -1143,6 +1177,7 @@ pub unsafe extern "C" fn virtDetachVO(vc: *mut c_void) -> c_int {
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtDetachVOAvatar(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { virtDetachVO(vc) }
 }
 
@@ -1153,6 +1188,7 @@ pub unsafe extern "C" fn virtDetachVOAvatar(vc: *mut c_void) -> c_int {
 /// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetPosition(vc: *mut c_void, pos: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let p = read_arr::<7>(pos)?;
@@ -1186,6 +1222,7 @@ pub unsafe extern "C" fn virtSetPosition(vc: *mut c_void, pos: *const c_float) -
 /// `vc` is NULL or live; `speed` is NULL or points to 6 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetSpeed(vc: *mut c_void, speed: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| Ok(c.session().set_speed(&read_arr::<6>(speed)?)?)) }
 }
 
@@ -1197,6 +1234,7 @@ pub unsafe extern "C" fn virtSetSpeed(vc: *mut c_void, speed: *const c_float) ->
 /// `vc` is NULL or live; `force` is NULL or points to 6 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetForce(vc: *mut c_void, force: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let f = read_arr::<6>(force)?;
@@ -1227,6 +1265,7 @@ pub unsafe extern "C" fn virtSetForce(vc: *mut c_void, force: *const c_float) ->
 /// `vc` is NULL or live; `force` is NULL or points to 6 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtAddForce(vc: *mut c_void, force: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let f = read_arr::<6>(force)?;
@@ -1256,6 +1295,7 @@ pub unsafe extern "C" fn virtSaturateTorque(
     force: c_float,
     torque: c_float,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             if !(force > 0.0 && torque > 0.0 && force.is_finite() && torque.is_finite()) {
@@ -1277,6 +1317,7 @@ pub unsafe extern "C" fn virtSaturateTorque(
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtEnableForceFeedback(vc: *mut c_void, enable: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let cmd = c.state().command;
@@ -1298,6 +1339,7 @@ pub unsafe extern "C" fn virtEnableForceFeedback(vc: *mut c_void, enable: c_int)
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| write_arr(pos, c.read(|v| v.get_position())?)) }
 }
 
@@ -1308,6 +1350,7 @@ pub unsafe extern "C" fn virtGetPosition(vc: *mut c_void, pos: *mut c_float) -> 
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetAvatarPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { virtGetPosition(vc, pos) }
 }
 
@@ -1317,6 +1360,7 @@ pub unsafe extern "C" fn virtGetAvatarPosition(vc: *mut c_void, pos: *mut c_floa
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetPhysicalPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| write_arr(pos, c.physical_pose()?)) }
 }
 
@@ -1326,6 +1370,7 @@ pub unsafe extern "C" fn virtGetPhysicalPosition(vc: *mut c_void, pos: *mut c_fl
 /// `vc` is NULL or live; `speed` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetSpeed(vc: *mut c_void, speed: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| write_arr(speed, c.read(|v| v.get_speed())?)) }
 }
 
@@ -1335,6 +1380,7 @@ pub unsafe extern "C" fn virtGetSpeed(vc: *mut c_void, speed: *mut c_float) -> c
 /// `vc` is NULL or live; `speed` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetPhysicalSpeed(vc: *mut c_void, speed: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let w = c.read(|v| v.get_speed())?;
@@ -1350,6 +1396,7 @@ pub unsafe extern "C" fn virtGetPhysicalSpeed(vc: *mut c_void, speed: *mut c_flo
 /// `vc` is NULL or live; `force` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetForce(vc: *mut c_void, force: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| write_arr(force, c.read(|v| v.get_force())?)) }
 }
 
@@ -1359,6 +1406,7 @@ pub unsafe extern "C" fn virtGetForce(vc: *mut c_void, force: *mut c_float) -> c
 /// `vc` is NULL or live; `time` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetTimeLastUpdate(vc: *mut c_void, time: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(time, c.read(|v| v.get_cycle())?)) }
 }
 
@@ -1370,6 +1418,7 @@ pub unsafe extern "C" fn virtGetTimeLastUpdate(vc: *mut c_void, time: *mut c_uin
 /// `vc` is NULL or live; `pos` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetArticularPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let q = c.joints()?;
@@ -1384,6 +1433,7 @@ pub unsafe extern "C" fn virtGetArticularPosition(vc: *mut c_void, pos: *mut c_f
 /// `vc` is NULL or live; `speed` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetArticularSpeed(vc: *mut c_void, speed: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let q = c.joints()?;
@@ -1408,6 +1458,7 @@ pub unsafe extern "C" fn virtSetPeriodicFunction(
     period: *const c_float,
     arg: *mut c_void,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let f = f.ok_or_else(ApiError::null)?;
@@ -1477,6 +1528,7 @@ fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtStartLoop(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let (f, arg, p) = c.state().periodic.ok_or_else(|| {
@@ -1523,6 +1575,7 @@ pub unsafe extern "C" fn virtStartLoop(vc: *mut c_void) -> c_int {
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtStopLoop(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let w = lock(&c.periodic_loop).take();
@@ -1546,6 +1599,7 @@ pub unsafe extern "C" fn virtStopLoop(vc: *mut c_void) -> c_int {
 /// `vc` is NULL or live; `n` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetCallbackOverruns(vc: *mut c_void, n: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| put(n, c.overruns.load(Ordering::SeqCst))) }
 }
 
@@ -1562,6 +1616,7 @@ pub unsafe extern "C" fn virtTrajSetSamplingTimeStep(
     step: c_float,
     record_time: *mut c_uint,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             if !(step > 0.0 && step <= 10.0) {
@@ -1572,7 +1627,9 @@ pub unsafe extern "C" fn virtTrajSetSamplingTimeStep(
             }
             put(
                 record_time,
-                (TRAJ_MAX_SAMPLES as f64 * step as f64).min(u32::MAX as f64) as c_uint,
+                (TRAJ_MAX_SAMPLES as f64 * step as f64)
+                    .round()
+                    .min(u32::MAX as f64) as c_uint,
             )?;
             c.state().traj_step = step;
             Ok(())
@@ -1588,6 +1645,7 @@ pub unsafe extern "C" fn virtTrajSetSamplingTimeStep(
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtTrajRecordStart(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let (path, step) = {
@@ -1651,13 +1709,13 @@ fn record(ctx: usize, file: std::fs::File, period: Duration, stop: Arc<AtomicBoo
             }
             n += 1;
         }
+        // Next point of the sampling grid (late samples skip grid points).
         next += period;
         let now = Instant::now();
-        if next > now {
-            std::thread::sleep(next - now);
-        } else {
-            next = now;
+        while next < now {
+            next += period;
         }
+        std::thread::sleep(next - now);
     }
     let _ = out.flush();
 }
@@ -1668,6 +1726,7 @@ fn record(ctx: usize, file: std::fs::File, period: Duration, stop: Arc<AtomicBoo
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtTrajRecordStop(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| match lock(&c.recorder).take() {
             Some(w) => {
@@ -1692,6 +1751,7 @@ pub unsafe extern "C" fn virtConvertDeplToHomogeneMatrix(
     d: *const c_float,
     m: *mut c_float,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     status_of(unsafe {
         read_arr::<7>(d).and_then(|d| {
             finite("displacement", &d)?;
@@ -1710,6 +1770,7 @@ pub unsafe extern "C" fn virtConvertHomogeneMatrixToDepl(
     d: *mut c_float,
     m: *const c_float,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     status_of(unsafe {
         read_arr::<16>(m).and_then(|m| {
             finite("matrix", &m)?;
@@ -1728,6 +1789,7 @@ pub unsafe extern "C" fn virtConvertRGBToGrayscale(
     rgb: *const c_float,
     gray: *mut c_float,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     status_of(unsafe {
         read_arr::<3>(rgb).and_then(|c| put(gray, 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]))
     })
@@ -1747,6 +1809,7 @@ pub unsafe extern "C" fn virtGetLinkStats(
     loss_ratio: *mut c_float,
     rtt_ms: *mut c_float,
 ) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
             let s = c.session().link_stats();
@@ -1849,6 +1912,7 @@ mod tests {
 
     #[test]
     fn null_pointers_are_errors_not_crashes() {
+        // SAFETY: the pointers are as this function's `# Safety` requires.
         unsafe {
             assert!(virtOpen(std::ptr::null()).is_null());
             assert_eq!(virtGetErrorCode(std::ptr::null_mut()), VIRT_E_SYNTAX_ERROR);
@@ -1886,6 +1950,7 @@ mod tests {
             virtGetErrorCode(std::ptr::null_mut()),
             VIRT_E_NOT_IMPLEMENTED
         );
+        // SAFETY: the pointers are as this function's `# Safety` requires.
         let msg = unsafe { CStr::from_ptr(virtGetErrorMessage(VIRT_E_NOT_IMPLEMENTED)) };
         assert!(msg.to_str().unwrap().contains("virtVmActivate"));
     }
@@ -1896,6 +1961,7 @@ mod tests {
         let d = [0.1f32, 0.2, 0.3, 0.0, s, 0.0, s];
         let mut m = [0f32; 16];
         let mut back = [0f32; 7];
+        // SAFETY: the pointers are as this function's `# Safety` requires.
         unsafe {
             assert_eq!(
                 virtConvertDeplToHomogeneMatrix(std::ptr::null_mut(), d.as_ptr(), m.as_mut_ptr()),
@@ -1916,6 +1982,7 @@ mod tests {
         // 90° about y: z axis → x axis (m[2] = R[0][2] = 1).
         assert!((m[2] - 1.0).abs() < 1e-6 && m[3] == 0.1);
         let mut g = 0.0;
+        // SAFETY: the pointers are as this function's `# Safety` requires.
         unsafe {
             assert_eq!(
                 virtConvertRGBToGrayscale(

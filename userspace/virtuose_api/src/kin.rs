@@ -442,11 +442,12 @@ pub fn joint_speeds(q: &[f64; 6], twist: &[f32; 6]) -> [f64; 6] {
         if d.abs() < 1e-15 {
             continue;
         }
-        for r in 0..6 {
+        let pivot = m[c];
+        for (r, row) in m.iter_mut().enumerate() {
             if r != c {
-                let f = m[r][c] / d;
-                for k in c..7 {
-                    m[r][k] -= f * m[c][k];
+                let f = row[c] / d;
+                for (v, p) in row.iter_mut().zip(pivot.iter()).skip(c) {
+                    *v -= f * p;
                 }
             }
         }
