@@ -72,3 +72,72 @@ fn c_example_builds_and_couples() {
     assert!(st.frames.get("vpr_stream").copied().unwrap_or(0) >= 1000);
     assert_eq!(st.frames.get("close_session"), Some(&1));
 }
+
+/// Compile `src` (C99, warnings as errors) against include/ and the static
+/// library; None when there is no C compiler.
+fn build_c(src: &str, name: &str) -> Option<PathBuf> {
+    if Command::new("cc").arg("--version").output().is_err() {
+        println!("SKIPPED: no C compiler (cc) on this machine");
+        return None;
+    }
+    let lib = staticlib().expect("libvirtuose_api.a not found next to the test binary");
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let out = std::env::temp_dir().join(format!("{name}_{}", std::process::id()));
+    let st = Command::new("cc")
+        .args([
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-D_POSIX_C_SOURCE=200809L",
+            "-O1",
+            "-I",
+        ])
+        .arg(root.join("../../include"))
+        .arg(root.join(src))
+        .arg(&lib)
+        .args(["-lpthread", "-ldl", "-lm", "-o"])
+        .arg(&out)
+        .status()
+        .expect("run cc");
+    assert!(st.success(), "cc {src} failed");
+    Some(out)
+}
+
+#[test]
+fn periodic_c_example_runs_its_callback_loop() {
+    let Some(exe) = build_c("examples/c/periodic.c", "virtuose_periodic") else {
+        return;
+    };
+    // The handle oscillates 2 cm along x: the callback's spring pushes back.
+    let peer = FakePeer::start(FakePeerConfig {
+        center: [0.5, 0.05, 0.3],
+        amplitude: [0.02, 0.0, 0.0],
+        freq_hz: 2.0,
+        answer_every_period: true,
+        twist_every: 4,
+        ..Default::default()
+    })
+    .unwrap();
+    let o = Command::new(&exe)
+        .arg(peer.address())
+        .arg("500")
+        .output()
+        .expect("run example");
+    let _ = std::fs::remove_file(&exe);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    println!("{stdout}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "example failed: {:?}", o.status);
+    assert!(stdout.contains("VirtuoseAPI 4.4"), "{stdout}");
+    assert!(stdout.contains("6 axes"), "{stdout}");
+    assert!(stdout.contains("OK"));
+    let st = peer.stats();
+    assert!(st.frames.get("vpr_stream").copied().unwrap_or(0) >= 10);
+    // Spring forces reached the coupling (saturated at 5 N by the example).
+    let k = hap_core::control::Gains::for_period(hap_core::fixed::Fx::from_ratio(1000, 1_000_000))
+        .k_lin
+        .to_f64();
+    assert!(st.max_vo_offset > 0.1 / k, "{} m", st.max_vo_offset);
+    assert!(!st.powered);
+    assert_eq!(st.frames.get("close_session"), Some(&1));
+}
