@@ -141,3 +141,55 @@ fn periodic_c_example_runs_its_callback_loop() {
     assert!(!st.powered);
     assert_eq!(st.frames.get("close_session"), Some(&1));
 }
+
+/// Every function VirtuoseAPI.h declares links against the library: a C
+/// file taking the address of each one builds (C and C++).
+#[test]
+fn every_declared_function_links() {
+    if Command::new("cc").arg("--version").output().is_err() {
+        println!("SKIPPED: no C compiler (cc) on this machine");
+        return;
+    }
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let include = root.join("../../include");
+    let header = std::fs::read_to_string(include.join("VirtuoseAPI.h")).unwrap();
+    let names: Vec<&str> = header
+        .lines()
+        .filter(|l| l.starts_with("extern ") && l.contains("virt"))
+        .filter_map(|l| l.split('(').next()?.split_whitespace().last())
+        .map(|n| n.trim_start_matches('*'))
+        .collect();
+    assert_eq!(names.len(), 118, "{names:?}");
+    let mut src =
+        String::from("#include \"VirtuoseAPI.h\"\n#include <stdio.h>\nint main(void) {\n");
+    for n in &names {
+        src.push_str(&format!("    printf(\"%p\\n\", (void *)&{n});\n"));
+    }
+    src.push_str("    return 0;\n}\n");
+    let dir = std::env::temp_dir().join(format!("virt_link_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let c = dir.join("all.c");
+    std::fs::write(&c, &src).unwrap();
+    let lib = staticlib().expect("libvirtuose_api.a");
+    for (compiler, lang) in [("cc", "c"), ("c++", "c++")] {
+        if Command::new(compiler).arg("--version").output().is_err() {
+            continue;
+        }
+        let exe = dir.join(format!("all_{lang}"));
+        let st = Command::new(compiler)
+            .args(["-x", lang, "-Wall", "-Werror", "-I"])
+            .arg(&include)
+            .arg(&c)
+            .args(["-x", "none"])
+            .arg(&lib)
+            .args(["-lpthread", "-ldl", "-lm", "-o"])
+            .arg(&exe)
+            .status()
+            .expect("run compiler");
+        assert!(st.success(), "{compiler} failed to build or link");
+        let o = Command::new(&exe).output().unwrap();
+        assert!(o.status.success());
+        assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 118);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
