@@ -147,9 +147,13 @@ if [ "$target" = fake ]; then
 fi
 
 # ---- QEMU: the module and proto_interface in the guest, UDP from the host
+# (needs the cached test kernel, scripts/build-kernel.sh)
+(cd "$ROOT" && make -s) > "$results/make.log" 2>&1 || { tail -5 "$results/make.log"; nok "module build (make)"; finish; }
+bash "$ROOT/scripts/build-userspace-static.sh" > "$results/static.log" 2>&1 \
+  || { tail -5 "$results/static.log"; nok "static userspace build"; finish; }
 port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 period_us=1000
-read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background ${HAP_E2E_QEMU:---icount-sleep} --udp "$port:5000" \
+read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background --timeout 240 ${HAP_E2E_QEMU:---icount-sleep} --udp "$port:5000" \
   --log "$results/guest.log" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" \
   "$ROOT/tests/guest/serve.sh" "$period_us" 90)
 trap 'kill $qpid 2>/dev/null' EXIT
