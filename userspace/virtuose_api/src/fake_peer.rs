@@ -44,6 +44,11 @@ pub struct FakePeerConfig {
     /// Answer every `period_us` while a session is open, like the
     /// controller (true), instead of once per VprStream (false).
     pub answer_every_period: bool,
+    /// `hap_core::vp::status` bits added to every answer (buttons,
+    /// emergency stop...).
+    pub extra_status: u32,
+    /// `hap_core::vp::alarm` bits reported in every answer.
+    pub alarms: u32,
 }
 
 impl Default for FakePeerConfig {
@@ -61,6 +66,8 @@ impl Default for FakePeerConfig {
             twist_every: 10,
             powered: false,
             answer_every_period: false,
+            extra_status: 0,
+            alarms: 0,
         }
     }
 }
@@ -208,7 +215,7 @@ fn run(
             }
         }
         cycle = cycle.wrapping_add(1);
-        let mut st = status::DEAD_MAN;
+        let mut st = status::DEAD_MAN | cfg.extra_status;
         if powered {
             st |= status::POWER_ON | status::MOTORS_ENABLED;
         }
@@ -225,7 +232,7 @@ fn run(
                 torque: Vec3::default(),
             },
             status: st,
-            alarms: 0,
+            alarms: cfg.alarms,
             cycle,
             vpr_seq,
         };
@@ -246,7 +253,7 @@ fn run(
                     angular: Vec3::default(),
                 },
                 status: st,
-                alarms: 0,
+                alarms: cfg.alarms,
                 cycle,
                 vpr_seq,
             };

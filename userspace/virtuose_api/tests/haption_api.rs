@@ -507,3 +507,46 @@ fn reads_before_the_first_answer_wait_then_time_out() {
         assert_eq!(virtClose(vc), 0);
     }
 }
+
+#[test]
+fn buttons_emergency_stop_and_failures_from_the_answers() {
+    use hap_core::vp::{alarm, status};
+    let p = FakePeer::start(FakePeerConfig {
+        center: [0.45, 0.05, 0.25],
+        amplitude: [0.0; 3],
+        answer_every_period: true,
+        extra_status: status::BUTTON_2 | status::EMERGENCY_STOP,
+        alarms: alarm::FAIL_SAFE | alarm::TORQUE_SATURATED,
+        ..Default::default()
+    })
+    .unwrap();
+    let vc = open(&p);
+    // SAFETY: vc is live; pointers valid.
+    unsafe {
+        let (mut b0, mut b1, mut es) = (7, 7, 7);
+        assert_eq!(virtGetButton(vc, 0, &mut b0), 0);
+        assert_eq!(virtGetButton(vc, 1, &mut b1), 0);
+        assert_eq!((b0, b1), (0, 1));
+        // Button 1 is pressed: returns at once.
+        assert_eq!(virtWaitPressButton(vc, 1), 0);
+        assert_eq!(virtGetEmergencyStop(vc, &mut es), 0);
+        assert_eq!(es, 0, "pressed: not operational");
+        let (mut fail, mut a): (c_uint, c_uint) = (0, 0);
+        assert_eq!(virtGetFailure(vc, &mut fail), 0);
+        assert_eq!(fail, 0x3f);
+        assert_eq!(virtGetAlarm(vc, &mut a), 0);
+        assert_ne!(a & VIRT_ALARM_SATURATE, 0, "{a:#x}");
+        assert_ne!(a & alarm::FAIL_SAFE, 0, "{a:#x}");
+        assert_eq!(virtClose(vc), 0);
+    }
+    // A controller that stops answering: the wait fails instead of hanging.
+    let silent = FakePeer::start(FakePeerConfig::default()).unwrap();
+    let vc = open(&silent);
+    // SAFETY: vc is live.
+    unsafe {
+        assert_eq!(virtSetTimeoutValue(vc, 0.2), 0);
+        assert_eq!(virtWaitPressButton(vc, 0), -1);
+        assert_eq!(code(), VIRT_E_TIME_OUT);
+        assert_eq!(virtClose(vc), 0);
+    }
+}
