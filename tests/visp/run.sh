@@ -7,7 +7,9 @@
 # powers on, reads the handle's physical pose and speed, sends forces from
 # its periodic callback for 10 s, stops the loop, powers off and closes.
 #   tests/visp/run.sh [--target fake|qemu] [--results DIR]
-# fake: the fake controller (virtuose_api::fake_peer) on the host (~20 s);
+# fake: the fake controller (virtuose_api::fake_peer) on the host (~1 min with
+# the builds), plus testVirtuosePeriodicFunction (fixed localhost#5000) in a
+# private network namespace (unshare -n);
 # qemu: the module in QEMU over UDP, like tests/e2e/link.sh (~1 min).
 # Needs root for apt-get (libvisp-robot-dev) unless it is installed already.
 # Prints every check, then "visp-TARGET: N passed, N failed".
@@ -36,6 +38,7 @@ VISP_ORIG_SHA256=494a648b2570da2a200ba326ed61a14e785eb9ee08ef12d3ad178b2f384d3d3
 VISP_SRC=(
   visp-3.5.0/modules/robot/src/haptic-device/virtuose/vpVirtuose.cpp
   visp-3.5.0/modules/robot/test/virtuose/testVirtuoseHapticBox.cpp
+  visp-3.5.0/modules/robot/test/virtuose/testVirtuosePeriodicFunction.cpp
 )
 
 pass=0; fail=0
@@ -101,6 +104,16 @@ else
   nok "build ViSP's vpVirtuose and testVirtuoseHapticBox"; finish
 fi
 
+prog2="$results/testVirtuosePeriodicFunction"
+if g++ -O1 -DVISP_HAVE_VIRTUOSE -I "$ROOT/include" -I "/usr/include/$multiarch" \
+     "$src/${VISP_SRC[0]}" "$src/${VISP_SRC[2]}" "$lib" \
+     -lvisp_robot -lvisp_core -lpthread -ldl -lm -o "$prog2" > "$results/build2.log" 2>&1; then
+  ok "testVirtuosePeriodicFunction.cpp builds unchanged"
+else
+  sed 's/^/# /' "$results/build2.log" | head -20
+  nok "build ViSP's testVirtuosePeriodicFunction"
+fi
+
 # The program's own checks: every vpVirtuose call that fails throws, and
 # main() prints "Catch an exception" instead of "The end".
 check_program() { # OUTPUT_FILE RC
@@ -143,6 +156,29 @@ if [ "$target" = fake ]; then
   check_num "the forces reached the coupling: largest set-point offset (m)" "$(fv max_vo_offset_m)" '>=' 0.002
   check_num "and were saturated (20 N / 1500 N/m + motion, m)" "$(fv max_vo_offset_m)" '<=' 0.02
   check_num "it closed its session" "$(fv frames.close_session)" '==' 1
+
+  # testVirtuosePeriodicFunction has no address option: it opens
+  # "localhost#5000". Run it and a fake controller on port 5000 in a
+  # private network namespace (own loopback), so nothing else is disturbed.
+  if [ -x "$prog2" ] && unshare -n true 2>/dev/null; then
+    unshare -n bash -c '
+      ip link set lo up 2>/dev/null || exit 3
+      sleep 9 | "$1" --port 5000 --duration 8 --center 0.45,0.05,0.25 --amplitude 0.05,0.02,0 > "$3/fake2.txt" 2>&1 &
+      f=$!
+      sleep 0.5
+      timeout 30 "$2" > "$3/program2.txt" 2>&1
+      echo $? > "$3/program2.rc"
+      wait $f' _ "$fc" "$prog2" "$results"
+    rc2=$(cat "$results/program2.rc" 2>/dev/null || echo none)
+    sed 's/^/# program: /' "$results/program2.txt" | grep -v -E '^# program: (pose|vel):' | head -8
+    echo "# program: ... $(grep -c '^pose:' "$results/program2.txt") 'pose:' lines from its callback"
+    [ "$rc2" = 0 ] && grep -q "^The end$" "$results/program2.txt" && ! grep -q "Catch an exception" "$results/program2.txt" \
+      && ok "testVirtuosePeriodicFunction ran to the end against localhost#5000 (private network namespace)" \
+      || nok "testVirtuosePeriodicFunction failed (exit $rc2): $(grep -m1 -E 'Catch|error' "$results/program2.txt")"
+    check_num "its callback printed physical poses" "$(grep -c '^pose:' "$results/program2.txt")" '>=' 100
+  else
+    echo "# SKIPPED testVirtuosePeriodicFunction: needs 'unshare -n' (root) for its fixed localhost#5000"
+  fi
   finish
 fi
 

@@ -1,9 +1,10 @@
 //! The fake controller (`virtuose_api::fake_peer`) as a process, for
 //! testing programs written in other languages against the library:
 //!
-//!   fake_controller [--period-us N] [--duration S] [--center X,Y,Z] [--amplitude X,Y,Z]
+//!   fake_controller [--port N] [--period-us N] [--duration S] [--center X,Y,Z] [--amplitude X,Y,Z]
 //!
-//! Prints `PORT <n>` (UDP, 127.0.0.1) once listening, answers every period
+//! Prints `PORT <n>` (UDP, 127.0.0.1; `--port 0`, the default, picks a free
+//! one) once listening, answers every period
 //! like the controller, and after `--duration` seconds (or when stdin is
 //! closed) prints what it saw as `key: value` lines.
 
@@ -52,6 +53,12 @@ fn main() {
                     .ok()
                     .filter(|d: &f64| *d > 0.0 && d.is_finite())
                     .unwrap_or_else(|| bad(format!("--duration {val}: seconds > 0")))
+            }
+            "--port" => {
+                let port: u16 = val
+                    .parse()
+                    .unwrap_or_else(|_| bad(format!("--port {val}: 0..65535")));
+                cfg.bind = std::net::SocketAddr::from(([127, 0, 0, 1], port));
             }
             "--center" => cfg.center = triple(&val).unwrap_or_else(|e| bad(e)),
             "--amplitude" => cfg.amplitude = triple(&val).unwrap_or_else(|e| bad(e)),

@@ -338,10 +338,17 @@ pub fn parse_address(s: &str) -> Result<SocketAddr> {
         return Err(VirtError::InvalidAddress(format!("{s}: port 0")));
     }
     let host = host.trim_start_matches('[').trim_end_matches(']');
-    (host, port)
+    // A name with several addresses ("localhost": ::1 and 127.0.0.1): the
+    // IPv4 one first, as VirtuoseAPI clients expect.
+    let addrs: Vec<SocketAddr> = (host, port)
         .to_socket_addrs()
         .map_err(|e| VirtError::InvalidAddress(format!("{s}: {e}")))?
-        .next()
+        .collect();
+    addrs
+        .iter()
+        .find(|a| a.is_ipv4())
+        .or(addrs.first())
+        .copied()
         .ok_or_else(|| VirtError::InvalidAddress(format!("{s}: no address")))
 }
 
@@ -943,6 +950,7 @@ mod tests {
         assert_eq!(parse_address("127.0.0.1").unwrap().port(), 5000);
         assert_eq!(parse_address("127.0.0.1:6000").unwrap().port(), 6000);
         assert_eq!(parse_address("localhost#7").unwrap().port(), 7);
+        assert!(parse_address("localhost#7").unwrap().is_ipv4());
         assert!(parse_address("").is_err());
         assert!(parse_address("127.0.0.1#x").is_err());
         assert!(parse_address("127.0.0.1#70000").is_err());
