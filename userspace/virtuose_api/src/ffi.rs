@@ -44,6 +44,7 @@ pub const VIRT_E_SYNTAX_ERROR: c_int = 10;
 pub const VIRT_E_HARDWARE_ERROR: c_int = 11;
 pub const VIRT_E_PERIODIC_FUNCTION: c_int = 14;
 pub const VIRT_E_WRONG_MODE: c_int = 17;
+pub const VIRT_E_CALL_TIME: c_int = 19;
 pub const VIRT_E_ALREADY_CALLED: c_int = 22;
 
 pub const COMMAND_TYPE_NONE: c_int = 0;
@@ -485,13 +486,28 @@ pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut c_void {
 /// Stop the callback loop and the recorder, close the session and free the
 /// context (the pointer becomes invalid).
 ///
+/// Refused (`VIRT_E_CALL_TIME`) from the context's own periodic callback.
+///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`; not called from the
-/// context's own callback.
+/// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
 pub unsafe extern "C" fn virtClose(vc: *mut c_void) -> c_int {
     if vc.is_null() {
         return status_of(Err(ApiError::new(VIRT_E_INVALID_CONTEXT, "null context")));
+    }
+    // From the context's own callback, freeing it would pull the loop's
+    // context from under it: refused.
+    // SAFETY: live pointer from Box::into_raw, per the contract.
+    let in_callback = unsafe { &*(vc as *const VirtContextS) }
+        .periodic_loop
+        .lock()
+        .map(|w| w.as_ref().map(|w| w.id) == Some(std::thread::current().id()))
+        .unwrap_or(false);
+    if in_callback {
+        return status_of(Err(ApiError::new(
+            VIRT_E_CALL_TIME,
+            "virtClose from the periodic callback: call virtStopLoop there, virtClose after",
+        )));
     }
     // SAFETY: live pointer from Box::into_raw, per the contract.
     let b = unsafe { Box::from_raw(vc as *mut VirtContextS) };
@@ -1463,10 +1479,10 @@ pub unsafe extern "C" fn virtSetPeriodicFunction(
         run(vc, |c| {
             let f = f.ok_or_else(ApiError::null)?;
             let p = *period.as_ref().ok_or_else(ApiError::null)?;
-            if !(p > 0.0 && p <= 1.0) {
+            if !(1e-4..=1.0).contains(&p) {
                 return Err(ApiError::new(
                     VIRT_E_INCORRECT_VALUE,
-                    format!("period {p} not in (0, 1] s"),
+                    format!("period {p} not in [0.0001, 1] s"),
                 ));
             }
             if c.loop_running() {

@@ -288,8 +288,13 @@ unsafe extern "C" fn callback(vc: *mut c_void, arg: *mut c_void) {
         std::thread::sleep(Duration::from_micros(c.sleep_us));
     }
     if c.stop_after > 0 && n == c.stop_after {
-        // SAFETY: vc is live; stopping from the callback is allowed.
-        assert_eq!(unsafe { virtStopLoop(vc) }, 0);
+        // SAFETY: vc is live; closing from the callback is refused,
+        // stopping is allowed.
+        unsafe {
+            assert_eq!(virtClose(vc), -1);
+            assert_eq!(virtGetErrorCode(vc), 19); // VIRT_E_CALL_TIME
+            assert_eq!(virtStopLoop(vc), 0);
+        }
     }
 }
 
@@ -311,6 +316,11 @@ fn periodic_loop_calls_back_streams_and_stops() {
         assert_eq!(virtStartLoop(vc), -1);
         assert_eq!(code(), VIRT_E_PERIODIC_FUNCTION);
         assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        let tiny = 1e-6f32;
+        let arg = &counter as *const Counter as *mut c_void;
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &tiny, arg), -1);
+        assert_eq!(code(), VIRT_E_INCORRECT_VALUE);
+        assert_eq!(virtSetPeriodicFunction(vc, None, &period, arg), -1);
         let arg = &counter as *const Counter as *mut c_void;
         assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
         let before = p.stats().frames.get("vpr_stream").copied().unwrap_or(0);
