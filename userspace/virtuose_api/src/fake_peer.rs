@@ -3,9 +3,11 @@
 //!
 //! It grants one session (other source addresses are ignored, like the
 //! bridge does), acknowledges configuration requests, and answers every
-//! VprStream with an Answer: the handle follows a scripted sinusoid, and the
-//! coupling wrench is a spring-damper between the handle and the streamed
-//! virtual object (only while a virtual object is attached and power is on).
+//! VprStream with an Answer (or, with `answer_every_period`, answers every
+//! period while the session is open, like the controller): the handle
+//! follows a scripted sinusoid, and the coupling wrench is a spring-damper
+//! between the handle and the streamed virtual object (only while a virtual
+//! object is attached and power is on).
 
 use std::collections::BTreeMap;
 use std::net::{SocketAddr, UdpSocket};
