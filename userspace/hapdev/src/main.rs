@@ -606,39 +606,6 @@ impl CutSummary {
     }
 }
 
-#[cfg(test)]
-mod cut_summary_tests {
-    use super::*;
-    use hap_core::servo::log_flags::LINE_CUT;
-
-    fn rec(cycle: u64, tau: i64, flags: u16) -> LogRecord {
-        LogRecord {
-            cycle,
-            flags,
-            motor_torque: [Fx(tau); 6],
-            ..LogRecord::ZERO
-        }
-    }
-
-    #[test]
-    fn counts_torque_on_each_side_of_the_cut() {
-        let recs = [
-            rec(1, 5, 0),
-            rec(2, 0, 0),
-            rec(3, 0, LINE_CUT),
-            rec(4, 7, LINE_CUT),
-            rec(5, 0, 0),
-        ];
-        let s = CutSummary::of(&recs);
-        assert_eq!(s.first_cut_cycle, Some(3));
-        assert_eq!((s.records_before_cut, s.torque_nonzero_before_cut), (2, 1));
-        assert_eq!((s.records_from_cut, s.torque_nonzero_from_cut), (3, 1));
-        assert_eq!(s.unflagged_after_cut, 1);
-        assert!(s.render().contains("torque_nonzero_from_cut: 1\n"));
-        assert_eq!(CutSummary::of(&recs[..2]).first_cut_cycle, None);
-    }
-}
-
 fn cmd_replay(effort: &str, load_cycle: u64, guest: &str, period_us: u32) -> Result<bool, String> {
     let text = std::fs::read(effort).map_err(|e| format!("{effort}: {e}"))?;
     let raw = std::fs::read(guest).map_err(|e| format!("{guest}: {e}"))?;
@@ -758,5 +725,38 @@ fn main() -> ExitCode {
             eprintln!("hapdev: {e}");
             ExitCode::from(2)
         }
+    }
+}
+
+#[cfg(test)]
+mod cut_summary_tests {
+    use super::*;
+    use hap_core::servo::log_flags::LINE_CUT;
+
+    fn rec(cycle: u64, tau: i64, flags: u16) -> LogRecord {
+        LogRecord {
+            cycle,
+            flags,
+            motor_torque: [Fx(tau); 6],
+            ..LogRecord::ZERO
+        }
+    }
+
+    #[test]
+    fn counts_torque_on_each_side_of_the_cut() {
+        let recs = [
+            rec(1, 5, 0),
+            rec(2, 0, 0),
+            rec(3, 0, LINE_CUT),
+            rec(4, 7, LINE_CUT),
+            rec(5, 0, 0),
+        ];
+        let s = CutSummary::of(&recs);
+        assert_eq!(s.first_cut_cycle, Some(3));
+        assert_eq!((s.records_before_cut, s.torque_nonzero_before_cut), (2, 1));
+        assert_eq!((s.records_from_cut, s.torque_nonzero_from_cut), (3, 1));
+        assert_eq!(s.unflagged_after_cut, 1);
+        assert!(s.render().contains("torque_nonzero_from_cut: 1\n"));
+        assert_eq!(CutSummary::of(&recs[..2]).first_cut_cycle, None);
     }
 }
