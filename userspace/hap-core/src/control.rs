@@ -48,6 +48,9 @@ pub const BRAKE_START: Joints = [
 /// Brake gain as a fraction of `I_rotor,i / T` (`B_i·T/I_i ≤ ½`: the sampled
 /// brake never reverses a joint within one period).
 pub const BRAKE_GAIN_FRACTION: Fx = Fx::HALF;
+/// Observer energy below which the passivity controller acts, J (−2^-20 J:
+/// fixed-point rounding of the observer stays above it).
+pub const PO_TOLERANCE: Fx = Fx(-(1 << 12));
 /// Passivity controller damping caps, N·s/m and N·m·s/rad.
 pub const PC_ALPHA_MAX: Fx = Fx::from_int(5);
 pub const PC_ALPHA_ROT_MAX: Fx = Fx::from_ratio(2, 100);
@@ -121,9 +124,7 @@ impl Gains {
             .min(ROT_SHARE.mul_sat(slack).div_sat(t.mul_sat(c)))
             .max(Fx::ZERO);
         let left = slack.sub_sat(t.mul_sat(k_rot).mul_sat(c)).max(Fx::ZERO);
-        let k_lin = K_LIN_NOMINAL
-            .min(left.div_sat(t.mul_sat(a)))
-            .max(Fx::ZERO);
+        let k_lin = K_LIN_NOMINAL.min(left.div_sat(t.mul_sat(a))).max(Fx::ZERO);
         Gains {
             k_lin,
             b_lin: B_LIN,
@@ -272,7 +273,9 @@ impl Controller {
         self.bound = Gains::at_bound(period);
         self.brake = brake_gains(period);
         // T / RAMP: Q32.32 of (period_s · 10^6 / RAMP_US).
-        let step = period.mul_int(1_000_000).div_sat(Fx::from_int(RAMP_US as i32));
+        let step = period
+            .mul_int(1_000_000)
+            .div_sat(Fx::from_int(RAMP_US as i32));
         self.ramp_step = step.max(Fx(1)).min(Fx::ONE);
     }
 
@@ -288,6 +291,11 @@ impl Controller {
     /// envelope ramps down).
     pub fn target(&self) -> Pose {
         self.held_target
+    }
+
+    /// The spring's slip (translation m, rotation rad).
+    pub fn slip(&self) -> (Vec3, Vec3) {
+        (self.slip, self.slip_rot)
     }
 
     /// The coupling envelope, [0, 1].
@@ -588,7 +596,7 @@ pub fn cartesian_control(
             ctrl.po_energy = ctrl.po_energy.add_sat(de);
         }
         // Passivity controller: dissipate the energy the coupling created.
-        if ctrl.passivity_control && ctrl.po_energy.0 < 0 {
+        if ctrl.passivity_control && ctrl.po_energy < PO_TOLERANCE {
             alarms |= alarm::PASSIVITY;
             let deficit = ctrl.po_energy.neg_sat();
             let v2 = v_h.norm_sq();
@@ -651,7 +659,11 @@ pub fn cartesian_control(
             let lim = arm::TAU_MAX.get(i).copied().unwrap_or(Fx::ZERO);
             let room = lim.sub_sat(t.abs()).max(Fx::ZERO);
             let mag = b.mul_sat(speed.sub_sat(*start)).min(room);
-            *t = if qd.0 > 0 { t.sub_sat(mag) } else { t.add_sat(mag) };
+            *t = if qd.0 > 0 {
+                t.sub_sat(mag)
+            } else {
+                t.add_sat(mag)
+            };
         }
     }
 

@@ -495,7 +495,10 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
             if applied != JOINTS_ZERO || log.motor_torque != JOINTS_ZERO {
                 figs.cut_nonzero += 1;
             }
-            assert_eq!(applied, JOINTS_ZERO, "seed {seed} cycle {n}: torque after cut");
+            assert_eq!(
+                applied, JOINTS_ZERO,
+                "seed {seed} cycle {n}: torque after cut"
+            );
             assert!(log.flags & log_flags::LINE_CUT != 0);
         }
         for i in 0..6 {
@@ -518,22 +521,35 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
                     .clamp(-f(arm::TAU_MAX[i]), f(arm::TAU_MAX[i]));
                 let mis = (f(applied[i]) - want).abs();
                 figs.worst_motor_mismatch = figs.worst_motor_mismatch.max(mis);
-                assert!(mis < 1e-5, "seed {seed} cycle {n}: joint {i} applied {} vs {want}", f(applied[i]));
+                assert!(
+                    mis < 1e-5,
+                    "seed {seed} cycle {n}: joint {i} applied {} vs {want}",
+                    f(applied[i])
+                );
             }
         }
         // Force bound: |F| ≤ envelope·F_max ≤ link gain·F_max.
         let gain = f(r.link_gain);
         let excess = hw_force - env * f(MAX_FORCE);
         figs.worst_force_excess = figs.worst_force_excess.max(excess);
-        assert!(excess < 1e-6, "seed {seed} cycle {n}: force {hw_force} > env {env}");
+        assert!(
+            excess < 1e-6,
+            "seed {seed} cycle {n}: force {hw_force} > env {env}"
+        );
         if r.vp.status & hap_core::vp::status::COUPLED != 0 {
-            assert!(env <= gain + 1e-9, "seed {seed} cycle {n}: envelope {env} above link gain {gain}");
+            assert!(
+                env <= gain + 1e-9,
+                "seed {seed} cycle {n}: envelope {env} above link gain {gain}"
+            );
         }
         // Envelope slew.
         let step = env - prev_env;
         if step > 0.0 {
             figs.worst_env_step = figs.worst_env_step.max(step);
-            assert!(step <= ramp_step + 1e-9, "seed {seed} cycle {n}: envelope step {step}");
+            assert!(
+                step <= ramp_step + 1e-9,
+                "seed {seed} cycle {n}: envelope step {step}"
+            );
         }
         // Link loss: from age > fade start, the motor force stays under the fade.
         let age_us = now.saturating_sub(c.synchro.last().received_cycle) * period_us as u64;
@@ -554,7 +570,10 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         if let Some(k) = resume_k {
             let allowed = f(MAX_FORCE) * ((k as f64 + 1.0) * ramp_step + prev_env).min(1.0);
             figs.worst_resume_excess = figs.worst_resume_excess.max(hw_force - allowed);
-            assert!(hw_force <= allowed + 1e-6, "seed {seed} cycle {n}: resume force {hw_force} > {allowed}");
+            assert!(
+                hw_force <= allowed + 1e-6,
+                "seed {seed} cycle {n}: resume force {hw_force} > {allowed}"
+            );
             resume_k = if k > 100 { None } else { Some(k + 1) };
         }
         // Mode switches change no gain: no energy.
@@ -576,7 +595,11 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         let tw = arm::jacobian_mul(&kin.jacobian, &qd);
         let _ = tw;
         let new_kin = arm::kinematics(&c.servo.simulator().q);
-        let v = norm(v3(arm::jacobian_mul(&new_kin.jacobian, &c.servo.simulator().qd).linear));
+        let v = norm(v3(arm::jacobian_mul(
+            &new_kin.jacobian,
+            &c.servo.simulator().qd,
+        )
+        .linear));
         if enabled {
             figs.max_speed = figs.max_speed.max(v);
         }
@@ -591,7 +614,10 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
             }
             if enabled && !entered_fast[i] {
                 figs.worst_joint_speed_ratio = figs.worst_joint_speed_ratio.max(ratio);
-                assert!(ratio <= 1.0, "seed {seed} cycle {n}: joint {i} speed ratio {ratio}");
+                assert!(
+                    ratio <= 1.0,
+                    "seed {seed} cycle {n}: joint {i} speed ratio {ratio}"
+                );
             }
         }
         // Energy: motor-side ledger of the coupling (exact work of the
@@ -643,7 +669,11 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         prev_hw = out.handle_wrench;
         for i in 0..6 {
             prev_applied[i] = f(applied[i]);
-            prev_fixed_tau[i] = if enabled { f(out.fixed_torques[i]) } else { 0.0 };
+            prev_fixed_tau[i] = if enabled {
+                f(out.fixed_torques[i])
+            } else {
+                0.0
+            };
         }
         if !enabled {
             prev_hw = Wrench::ZERO;
