@@ -12,7 +12,14 @@ fn main() {
     for (i, &us) in [250u32, 1000, 10_000].iter().enumerate() {
         let mut per = campaign::Figures::new();
         for seed in 0..runs {
-            let figs = campaign::run(1000 + seed * 7 + i as u64, us, cycles);
+            let sd = 1000 + seed * 7 + i as u64;
+            let figs = campaign::run(sd, us, cycles);
+            if figs.worst_ledger < -1e-6 || figs.worst_observer < -1e-6 {
+                println!(
+                    "  seed {sd} at {us} µs: ledger {:.3e} J, observer {:.3e} J",
+                    figs.worst_ledger, figs.worst_observer
+                );
+            }
             per.merge(&figs);
         }
         per.print(&format!("{us} µs"));

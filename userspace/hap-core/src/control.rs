@@ -545,8 +545,24 @@ pub fn cartesian_control(
             ctrl.slip_rot = Vec3::ZERO;
         }
         // The spring acts on the error less its slip (see below).
-        let d_eff = d.sub(ctrl.slip);
-        let e_eff = e.sub(ctrl.slip_rot);
+        let mut d_eff = d.sub(ctrl.slip);
+        let mut e_eff = e.sub(ctrl.slip_rot);
+        if ctrl.coupled && env > env_prev {
+            // A rising envelope stores ½(g − g₀)·K|d|² more in the spring:
+            // paid by the observer when it holds it, else the anchor slips
+            // so that the force stays continuous (g₀/g of the stretch).
+            let v = spring_energy(&g, d_eff, e_eff);
+            let cost = v.mul_sat(env.sub_sat(env_prev));
+            if ctrl.po_energy.sub_sat(cost) >= v.mul_sat(env) {
+                ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
+            } else {
+                let k = ratio_le1(env_prev, env);
+                d_eff = d_eff.scale(k);
+                e_eff = e_eff.scale(k);
+                ctrl.slip = d.sub(d_eff);
+                ctrl.slip_rot = e.sub(e_eff);
+            }
+        }
         spring = Some((d, e, d_eff, e_eff));
         let dv = clamp_vec(t_v.sub(v_h), V_CLAMP);
         let dw = clamp_vec(t_w.sub(w_h), W_CLAMP);

@@ -158,7 +158,8 @@ fn stiff_wall_at_the_bound_is_stable_and_passive() {
     let early = amplitude(&xs[3200..3700]);
     let late = amplitude(&xs[5500..6000]);
     let k = g.k_lin.to_f64();
-    assert_eq!(s.controller().slip().0, Vec3::ZERO);
+    // No force was refused: the spring did not slip (beyond rounding).
+    assert!(s.controller().slip().0.norm().to_f64() < 1e-6);
     println!(
         "wall K = {k:.0} N/m (nominal {:.0}): penetration {:.2} mm @2 N, {:.2} mm @4 N (expected {:.2}/{:.2}); \
          oscillation p-p after step {:.3e} m, last 0.5 s {:.3e} m; min PO energy {:.3e} J; alarms {alarms:#x}",

@@ -93,7 +93,7 @@ impl Figures {
             100.0 * self.passivity_cycles as f64 / (self.coupled_cycles.max(1) as f64)
         );
         println!(
-            "  link loss: {} events, {} with motor force above the fade; resumes: {}, worst force above the ramp {:.2e} N; worst envelope step {:.5} (ramp step ≤ 0.2)",
+            "  link loss: {} events, {} with motor force above the fade; resumes: {}, worst force above the ramp {:.2e} N; worst envelope step {:.5} (ramp: T/50 ms per cycle)",
             self.link_loss_events, self.link_loss_unfaded, self.resumes, self.worst_resume_excess, self.worst_env_step
         );
         println!(
@@ -651,7 +651,14 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
                     let pf = pf.map(|x| x / 2.0);
                     let pt_ = pt_.map(|x| x / 2.0);
                     let port: f64 = (0..3).map(|k| pf[k] * dpt[k] + pt_[k] * dth[k]).sum();
-                    let l = l + port - work + credit;
+                    let l2 = l + port - work + credit;
+                    if std::env::var_os("HAP_CAMPAIGN_DEBUG").is_some() && l2 - l < -1e-3 {
+                        println!(
+                            "n {n} client {client:?} mode {mode:?} dL {:.4} port {port:.4} work {work:.4} credit {credit:.4} env {env:.3} scale {:.3} slip {:?} obs {:.4} gain {gain:.3} drop {drop_left} closed {closed_left} pwr {power:?} alarms {:#x}",
+                            l2 - l, f(out.torque_scale), c.servo.controller().slip().0.to_f64(), f(out.po_energy), out.alarms
+                        );
+                    }
+                    let l = l2;
                     ledger = Some(l);
                     figs.worst_ledger = figs.worst_ledger.min(l);
                 }
