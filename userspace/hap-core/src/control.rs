@@ -9,9 +9,13 @@
 //! world → arm base). Forces go back scaled by `force_factor` (client force =
 //! `force_factor` × arm force; torques by `force_factor·speed_factor`).
 //!
-//! Gains are chosen inside the passivity bound `b > K·T/2 + |B|`, applied per
-//! joint with the largest lever arm (see `Documentation/control.md`):
-//! `b_i > (K_t·r_i² + K_r)·T/2 + B_t·r_i² + B_r`.
+//! Gains are scheduled with the period so that the joint-space passivity
+//! condition `D − (T'/2)(K_t J_vᵀJ_v + K_r J_ωᵀJ_ω) − (B_t J_vᵀJ_v + B_r J_ωᵀJ_ω) ≻ 0`
+//! holds over the workspace at the effective period `T' = 2T` (main and
+//! degraded path alike). The coupling force reaches the motors through an
+//! envelope (soft start, link fade, ramps), a torque-vector scaling that
+//! keeps its direction, and a spring that slips rather than store a force
+//! it could not apply (see `Documentation/control.md`).
 
 use super::arm::{self, Kinematics};
 use super::config::{CommandType, IndexingMode, ServoConfig};
