@@ -189,11 +189,11 @@ pub struct Controller {
     /// proven viscous dissipation, J (≥ 0 when passive).
     po_energy: Fx,
     coupled: bool,
-    prev_handle: Vec3,
     /// Spring slip (translation m, rotation rad): see `cartesian_control`.
     slip: Vec3,
     slip_rot: Vec3,
-    prev_handle_rot: Quat,
+    /// The coupling's joint torques the motors got last cycle.
+    prev_tau_c: Joints,
     prev_target: Pose,
     prev_wrench: Wrench,
     prev_q: Joints,
@@ -250,10 +250,9 @@ impl Controller {
             envelope: Fx::ZERO,
             po_energy: Fx::ZERO,
             coupled: false,
-            prev_handle: Vec3::ZERO,
             slip: Vec3::ZERO,
             slip_rot: Vec3::ZERO,
-            prev_handle_rot: Quat::IDENTITY,
+            prev_tau_c: JOINTS_ZERO,
             prev_target: Pose::IDENTITY,
             prev_wrench: Wrench::ZERO,
             prev_q: JOINTS_ZERO,
@@ -587,26 +586,29 @@ pub fn cartesian_control(
             // Start of coupling: the observer starts with the spring's energy.
             ctrl.po_energy = spring_energy(&g, d_eff, e_eff);
             ctrl.prev_wrench = Wrench::ZERO;
+            ctrl.prev_tau_c = JOINTS_ZERO;
         } else {
             // Passivity observer: energy that entered the coupling during the
             // last period through both ports, plus the viscous dissipation
             // of the arm's joints that the encoders prove (Cauchy–Schwarz:
-            // ∫q̇² dt ≥ Δq²/T). Handle port: the wrench the motors held
-            // (ZOH). Target port: the client's pose is a sampled signal, so
-            // the spring's change is the trapezoid of the wrench before and
-            // after its step.
+            // ∫q̇² dt ≥ Δq²/T). Handle port: the coupling's joint torques
+            // the motors held over the period (ZOH), times the joint
+            // displacement: the exact work at the motors. Target port: the
+            // client's pose is a sampled signal, so the spring's change on
+            // its step is the trapezoid of the wrench before and after it.
             let dp_t = t_pos.sub(ctrl.prev_target.position);
             let dth_t = t_rot.error_vector(&ctrl.prev_target.orientation);
-            let dp_h = p_h.sub(ctrl.prev_handle);
-            let dth_h = q_h.error_vector(&ctrl.prev_handle_rot);
             let pw = ctrl.prev_wrench;
             let avg_f = pw.force.add(w.force).scale(Fx::HALF);
             let avg_t = pw.torque.add(w.torque).scale(Fx::HALF);
-            let mut de = avg_f
-                .dot(dp_t)
-                .add_sat(avg_t.dot(dth_t))
-                .sub_sat(pw.force.dot(dp_h))
-                .sub_sat(pw.torque.dot(dth_h));
+            let mut de = avg_f.dot(dp_t).add_sat(avg_t.dot(dth_t));
+            for ((q, q0), t) in
+                ps.q.iter()
+                    .zip(ctrl.prev_q.iter())
+                    .zip(ctrl.prev_tau_c.iter())
+            {
+                de = de.sub_sat(t.mul_sat(q.sub_sat(*q0)));
+            }
             if ctrl.period.0 > 0 {
                 for ((q, q0), b) in ps.q.iter().zip(ctrl.prev_q.iter()).zip(arm::DAMPING.iter()) {
                     let dq = q.sub_sat(*q0);
@@ -637,8 +639,6 @@ pub fn cartesian_control(
             .saturate(MAX_FORCE.mul_sat(env), MAX_TORQUE.mul_sat(env))
             .0;
         ctrl.prev_target = target;
-        ctrl.prev_handle = p_h;
-        ctrl.prev_handle_rot = q_h;
         ctrl.prev_q = ps.q;
         ctrl.coupled = true;
         if want_coupling {
@@ -722,6 +722,14 @@ pub fn cartesian_control(
     }
     if ctrl.coupled {
         ctrl.prev_wrench = handle_wrench;
+        for ((p, o), tf) in ctrl
+            .prev_tau_c
+            .iter_mut()
+            .zip(joint_torques.iter())
+            .zip(fixed.iter())
+        {
+            *p = o.sub_sat(*tf);
+        }
     }
     // ---- Slip: a force the spring could not apply (wrench saturation,
     // torque-vector scaling) is not stored either. The spring's anchor slips

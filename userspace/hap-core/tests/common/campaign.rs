@@ -687,5 +687,17 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         }
         prev_env = env;
     }
+    // Per run: the coupling generated no energy beyond rounding, at the
+    // motors (ledger) and in the observer the passivity controller uses.
+    assert!(
+        figs.worst_ledger > -1e-6,
+        "seed {seed} at {period_us} µs: coupling energy {:.3e} J",
+        figs.worst_ledger
+    );
+    assert!(
+        figs.worst_observer > -1e-6,
+        "seed {seed} at {period_us} µs: observer {:.3e} J",
+        figs.worst_observer
+    );
     figs
 }
