@@ -542,7 +542,9 @@ pub fn cartesian_control(
         // Errors bounded before the products (a hostile target far away
         // saturates the force anyway; this keeps every product in range).
         let d = clamp_vec(t_pos.sub(p_h), D_CLAMP);
-        let e = t_rot.error_vector(&q_h);
+        // |e| ≤ 2 for unit quaternions; a client's non-unit frame cannot
+        // make it larger.
+        let e = clamp_vec(t_rot.error_vector(&q_h), Fx::TWO);
         if !ctrl.coupled {
             ctrl.slip = Vec3::ZERO;
             ctrl.slip_rot = Vec3::ZERO;

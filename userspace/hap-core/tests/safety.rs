@@ -157,13 +157,33 @@ fn absurd_client_gains_stay_inside_the_bound() {
             buttons: 0,
         }),
     };
-    for n in 0..2000u64 {
+    let mut cfgs = [cfg; 3];
+    // A non-unit base frame quaternion and a tiny speed factor.
+    cfgs[1].base_frame.orientation = hap_core::fixed::Quat::new(
+        Fx::from_int(1000),
+        Fx::from_int(-3),
+        Fx::ZERO,
+        Fx::from_int(7),
+    );
+    cfgs[1].command_type = CommandType::Impedance;
+    cfgs[2].speed_factor = Fx(1);
+    cfgs[2].force_factor = Fx(1);
+    cfgs[2].command_type = CommandType::Impedance;
+    for n in 0..3000u64 {
+        let cfg = cfgs[(n / 1000) as usize];
         let mut v = vpr;
         v.received_cycle = n;
+        v.twist.linear = Vec3::from_f64([1e8, 0.0, -1e8]);
+        v.twist.angular = Vec3::from_f64([-1e8, 1e8, 0.0]);
         let r = c.run(&line, &held, &cfg, Some(&v), ServoMode::Main);
         let hw = c.servo.control_output().handle_wrench;
         assert!(hw.force.norm() <= MAX_FORCE.add_sat(Fx(64)));
-        let _ = r;
+        assert!(hw.torque.norm() <= hap_core::control::MAX_TORQUE.add_sat(Fx(64)));
+        assert!(
+            c.servo.controller().po_energy() > Fx::from_f64(-1e-6),
+            "cycle {n}"
+        );
+        assert!(r.vp.status & status::COUPLED != 0 || n % 1000 == 0);
         for (t, l) in line.applied().iter().zip(arm::TAU_MAX.iter()) {
             assert!(t.abs() <= *l);
         }
