@@ -194,6 +194,8 @@ pub struct Controller {
     slip_rot: Vec3,
     /// The coupling's joint torques the motors got last cycle.
     prev_tau_c: Joints,
+    /// The gains used last cycle.
+    prev_k: Gains,
     prev_target: Pose,
     prev_wrench: Wrench,
     prev_q: Joints,
@@ -234,6 +236,10 @@ pub struct ControlOutput {
     /// Scale applied to the coupling's joint torques to fit the motor
     /// limits (1: none), [0, 1].
     pub torque_scale: Fx,
+    /// The spring–damper wrench after the envelope and the saturation,
+    /// before the passivity controller and the torque scaling: the force
+    /// the target port sees right after the client's step.
+    pub spring_wrench: Wrench,
 }
 
 impl Controller {
@@ -253,6 +259,7 @@ impl Controller {
             slip: Vec3::ZERO,
             slip_rot: Vec3::ZERO,
             prev_tau_c: JOINTS_ZERO,
+            prev_k: Gains::ZERO,
             prev_target: Pose::IDENTITY,
             prev_wrench: Wrench::ZERO,
             prev_q: JOINTS_ZERO,
@@ -343,6 +350,7 @@ impl Default for ControlOutput {
             po_energy: Fx::ZERO,
             envelope: Fx::ZERO,
             torque_scale: Fx::ONE,
+            spring_wrench: Wrench::ZERO,
         }
     }
 }
@@ -519,6 +527,7 @@ pub fn cartesian_control(
     let mut spring: Option<(Vec3, Vec3, Vec3, Vec3)> = None;
     let mut sat_f = Fx::ONE;
     let mut sat_t = Fx::ONE;
+    let mut spring_wrench = Wrench::ZERO;
     let mut t_v = Vec3::ZERO;
     let mut t_w = Vec3::ZERO;
     let active = env.0 > 0 && (want_coupling || ctrl.coupled);
@@ -552,6 +561,18 @@ pub fn cartesian_control(
         // The spring acts on the error less its slip (see below).
         let mut d_eff = d.sub(ctrl.slip);
         let mut e_eff = e.sub(ctrl.slip_rot);
+        if ctrl.coupled && (g.k_lin > ctrl.prev_k.k_lin || g.k_rot > ctrl.prev_k.k_rot) {
+            // A stiffer spring (command type, attached object, time step
+            // changed) keeps the force it had: the anchor slips to K₀/K of
+            // the stretch, so no energy enters with the new gains.
+            let kl = ratio_le1(ctrl.prev_k.k_lin, g.k_lin);
+            let kr = ratio_le1(ctrl.prev_k.k_rot, g.k_rot);
+            d_eff = d_eff.scale(kl);
+            e_eff = e_eff.scale(kr);
+            ctrl.slip = d.sub(d_eff);
+            ctrl.slip_rot = e.sub(e_eff);
+        }
+        ctrl.prev_k = g;
         if ctrl.coupled && env > env_prev {
             // A rising envelope stores ½(g − g₀)·K|d|² more in the spring:
             // paid by the observer when it holds it, else the anchor slips
@@ -584,6 +605,7 @@ pub fn cartesian_control(
             sat_t = ratio_le1(w.torque.norm(), tq.norm());
         }
         w = w.scale(env);
+        spring_wrench = w;
         if !ctrl.coupled {
             // Start of coupling: the observer starts with the spring's energy.
             ctrl.po_energy = spring_energy(&g, d_eff, e_eff);
@@ -781,5 +803,6 @@ pub fn cartesian_control(
         po_energy: ctrl.po_energy,
         envelope: ctrl.envelope,
         torque_scale: s,
+        spring_wrench,
     }
 }

@@ -125,6 +125,7 @@ impl Servo {
                 po_energy: Fx::ZERO,
                 envelope: Fx::ZERO,
                 torque_scale: Fx::ONE,
+                spring_wrench: super::fixed::Wrench::ZERO,
             },
         }
     }

@@ -408,3 +408,36 @@ fn campaign_small_seed_set() {
     assert_eq!(all.runs, 6);
     assert_eq!(all.cut_nonzero, 0);
 }
+
+#[test]
+fn stiffer_gains_on_a_mode_switch_keep_the_force_and_inject_nothing() {
+    let (mut c, line, mut cfg, mut vpr) = coupled_cycle(1000);
+    // VirtMech with a light object: K capped at m/ts² = 40 N/m.
+    cfg.command_type = CommandType::VirtMech;
+    cfg.attached_object = Some(VirtualObjectParams {
+        mass: Fx::from_f64(0.00004),
+        inertia: Vec3::ZERO,
+    });
+    let push = held([6.0, 0.0, 0.0]);
+    for n in 0..600u64 {
+        vpr.received_cycle = c.servo.cycle();
+        vpr.seq = n as u32;
+        c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+    }
+    let before = c.servo.control_output().handle_wrench.force.norm().to_f64();
+    // Switch to Impedance: K jumps to the nominal 203 N/m.
+    cfg.command_type = CommandType::Impedance;
+    vpr.received_cycle = c.servo.cycle();
+    c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+    let after = c.servo.control_output().handle_wrench.force.norm().to_f64();
+    println!("force before {before:.3} N, after the switch {after:.3} N");
+    assert!((after - before).abs() < 0.5, "{before} → {after}");
+    let mut min_e = f64::MAX;
+    for n in 0..2000u64 {
+        vpr.received_cycle = c.servo.cycle();
+        vpr.seq = n as u32;
+        c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+        min_e = min_e.min(c.servo.controller().po_energy().to_f64());
+    }
+    assert!(min_e > -1e-6, "{min_e}");
+}

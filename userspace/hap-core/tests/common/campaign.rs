@@ -418,6 +418,19 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
                 )
             }
         };
+        // Mode switches of the client: command type, attached object.
+        if rng.gen_bool(0.0005) {
+            cfg.command_type = match rng.gen_range(0..4) {
+                0 => CommandType::None,
+                1 => CommandType::VirtMech,
+                _ => CommandType::Impedance,
+            };
+            cfg.attached_object = Some(VirtualObjectParams {
+                mass: Fx::from_f64(rng.gen_range(0.0001..5.0)),
+                inertia: Vec3::ZERO,
+            });
+            cfg.time_step = Fx::from_f64(t * rng.gen_range(0.5..4.0));
+        }
         // Link drops, session close/open, degraded episodes.
         if drop_left == 0 && closed_left == 0 && rng.gen_bool(0.002) {
             drop_left = rng.gen_range(1..=300);
@@ -646,8 +659,10 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
                     let dth = v3(tgt.orientation.error_vector(&pt.orientation));
                     // Target port: trapezoid of the wrench before and after
                     // the client's (sampled) step.
-                    let pf = v3(prev_hw.force.add(out.handle_wrench.force));
-                    let pt_ = v3(prev_hw.torque.add(out.handle_wrench.torque));
+                    // (After the step: the spring's force before the motor
+                    // scaling, which then slips the spring, a dissipation.)
+                    let pf = v3(prev_hw.force.add(out.spring_wrench.force));
+                    let pt_ = v3(prev_hw.torque.add(out.spring_wrench.torque));
                     let pf = pf.map(|x| x / 2.0);
                     let pt_ = pt_.map(|x| x / 2.0);
                     let port: f64 = (0..3).map(|k| pf[k] * dpt[k] + pt_[k] * dth[k]).sum();
