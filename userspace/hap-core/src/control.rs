@@ -515,7 +515,10 @@ pub fn cartesian_control(
     } else if want_coupling {
         env_prev.add_sat(ctrl.ramp_step).min(ctrl.link_gain)
     } else if ctrl.coupled {
-        env_prev.sub_sat(ctrl.ramp_step).max(Fx::ZERO)
+        env_prev
+            .sub_sat(ctrl.ramp_step)
+            .max(Fx::ZERO)
+            .min(ctrl.link_gain)
     } else {
         Fx::ZERO
     };

@@ -73,7 +73,14 @@ impl ServoCycle {
         }
         // The watchdog's gain bounds the coupling envelope, so the force the
         // motors apply and the answer's wrench (its reaction) are both faded.
-        self.servo.set_link_gain(est.link_gain);
+        // A closed session (no VPr copy) is not a silent link: the
+        // coupling then ramps down on its own (control.md).
+        let gain = if self.synchro.last().valid {
+            est.link_gain
+        } else {
+            Fx::ONE
+        };
+        self.servo.set_link_gain(gain);
         let mut vp = *self.servo.step(line, inputs, config, &vpr, mode);
         vp.status |= est.status;
         CycleResult {

@@ -575,6 +575,10 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
             loss_unfaded = true;
             figs.link_loss_unfaded += 1;
         }
+        if losing && gain == 0.0 {
+            // From age 100 ms on, exactly no coupling force at the motors.
+            assert_eq!(hw_force, 0.0, "seed {seed} cycle {n}: force at gain 0");
+        }
         if in_loss && !losing {
             figs.resumes += 1;
             resume_k = Some(0);
