@@ -154,7 +154,9 @@ if [ "$target" = fake ]; then
   check_num "its callback streamed force set-points (frames)" "$(fv frames.vpr_stream)" '>=' 1000
   # ViSP's box pushes with up to 15 N: 15 N / 1500 N/m = 10 mm of spring.
   check_num "the forces reached the coupling: largest set-point offset (m)" "$(fv max_vo_offset_m)" '>=' 0.002
-  check_num "and were saturated (20 N / 1500 N/m + motion, m)" "$(fv max_vo_offset_m)" '<=' 0.02
+  # (No upper bound here: the handle moves between the answer the library
+  # used and the set-point's arrival, by as much as the host's scheduling
+  # delays; saturation is checked with a still handle in tests/haption_api.rs.)
   check_num "it closed its session" "$(fv frames.close_session)" '==' 1
 
   # testVirtuosePeriodicFunction has no address option: it opens
