@@ -20,20 +20,10 @@ pub enum FrameKind {
     Other,
 }
 
-/// Why a datagram was not forwarded.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Reject {
-    /// Longer than the 90-byte maximum frame.
-    Oversize,
-    /// Shorter than the smallest valid frame.
-    Undersize,
-    /// Did not decode (bad magic, CRC, XDR...).
-    Malformed,
-    /// From an address other than the session's client.
-    StraySource,
-    /// Not an `OpenSession` and no session is open.
-    NoSession,
-}
+/// Why a datagram was not forwarded: the bridge's reasons are those of
+/// the authenticating gate (`Oversize`, `Undersize`, `Malformed`,
+/// `StraySource`, `NoSession` are the ones this module and `frames` use).
+pub use hap_auth::Refusal as Reject;
 
 /// The decision for one datagram.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -92,6 +82,10 @@ impl Session {
             Some(client) if client != src => Decision::Drop(Reject::StraySource),
             Some(_) => {
                 self.last_seen = now;
+                if kind == FrameKind::OpenSession {
+                    // The same client re-opening: the kernel opens a new session.
+                    self.opened += 1;
+                }
                 if kind == FrameKind::CloseSession {
                     self.client = None;
                     self.closed += 1;
@@ -139,8 +133,10 @@ mod tests {
             s.admit(a(2), FrameKind::Other, t),
             Decision::Drop(Reject::StraySource)
         );
-        // The same client re-opening is forwarded (the kernel resets its session).
+        // The same client re-opening is forwarded (the kernel opens a new
+        // session) and counted, as the kernel counts it.
         assert_eq!(s.admit(a(1), FrameKind::OpenSession, t), Decision::Forward);
+        assert_eq!(s.opened, 2);
     }
 
     #[test]
