@@ -47,7 +47,11 @@ typedef struct VirtContextS *VirtContext;
 #define INDEXING_ALL_FORCE_FEEDBACK_INHIBITION   3
 #define INDEXING_TRANS_FORCE_FEEDBACK_INHIBITION 4
 
-/* Open a session with the controller: "host#port" (port defaults to 5000). */
+/* Open a session with the controller: "host#port" (port defaults to 5000).
+ * Authenticated (protocol v2) with a pre-shared key file (hapctl keygen,
+ * mode 0600): "host#port?key=/path/to/key", or the file named by the
+ * environment variable HAP_KEY_FILE. Without a key: unauthenticated v1,
+ * which the bridge refuses unless it runs with --insecure. */
 VirtContext virtOpen(const char *name);
 /* Close the session and free the context. */
 int virtClose(VirtContext vc);

@@ -64,7 +64,7 @@ pub fn hmac(key: &[u8], parts: &[&[u8]]) -> Key {
 }
 
 /// The pre-shared key. `Debug` does not print it.
-#[derive(Clone, PartialEq, Eq)]
+#[derive(Clone, Copy, PartialEq, Eq)]
 pub struct Psk([u8; PSK_LEN]);
 
 impl std::fmt::Debug for Psk {

@@ -267,3 +267,24 @@ fn launch_script_starts_and_stops_with_fake_tools() {
         "bridge still alive: {stat}"
     );
 }
+
+#[test]
+fn keygen_writes_a_private_key_once() {
+    use std::os::unix::fs::PermissionsExt;
+    let d = tmpdir("keygen");
+    let key = d.join("hap.key");
+    let o = hapctl(&d, &["keygen", key.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", err(&o));
+    let mode = std::fs::metadata(&key).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o600);
+    let k1 = hap_auth::Psk::load(&key).unwrap();
+    // Never overwritten.
+    let o = hapctl(&d, &["keygen", key.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert_eq!(hap_auth::Psk::load(&key).unwrap(), k1);
+    // Two keys differ.
+    let key2 = d.join("hap2.key");
+    assert!(hapctl(&d, &["keygen", key2.to_str().unwrap()]).status.success());
+    assert_ne!(hap_auth::Psk::load(&key2).unwrap(), k1);
+    let _ = std::fs::remove_dir_all(&d);
+}
