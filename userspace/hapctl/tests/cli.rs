@@ -214,6 +214,18 @@ fn launch_script_starts_and_stops_with_fake_tools() {
         .unwrap();
         Command::new("chmod").arg("+x").arg(&p).status().unwrap();
     }
+    // The bridge: records its arguments, then lives on.
+    let proto = bin.join("fake_proto");
+    std::fs::write(
+        &proto,
+        format!(
+            "#!/bin/sh\necho \"proto $*\" >> {}\nexec sleep 30\n",
+            calls.display()
+        ),
+    )
+    .unwrap();
+    Command::new("chmod").arg("+x").arg(&proto).status().unwrap();
+    let key = d.join("hap.key");
     let ko = d.join("hapticctrl.ko");
     std::fs::write(&ko, "").unwrap();
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/hapticctrl.sh");
@@ -222,19 +234,42 @@ fn launch_script_starts_and_stops_with_fake_tools() {
         bin.display(),
         std::env::var("PATH").unwrap_or_default()
     );
-    let run = |args: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_hapctl"))
-            .args(args)
+    let run_env = |args: &[&str], env: &[(&str, &str)]| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_hapctl"));
+        c.args(args)
             .arg("--script")
             .arg(&script)
             .env("PATH", &path)
             .env("HAP_MODULE", &ko)
-            .env("HAP_PROTO", "sleep")
-            .env("HAP_PROTO_ARGS", "30")
+            .env("HAP_PROTO", &proto)
+            .env("HAP_PROTO_ARGS", "--port 5001")
+            .env("HAP_KEY", &key)
+            .env("HAP_USER", "")
             .env("HAP_RUN", &d)
-            .output()
-            .unwrap()
+            .env_remove("HAP_INSECURE");
+        for (k, v) in env {
+            c.env(k, v);
+        }
+        c.output().unwrap()
     };
+    let run = |args: &[&str]| run_env(args, &[]);
+    // No key and no HAP_INSECURE: refused, nothing started.
+    let o = run(&["start"]);
+    assert!(!o.status.success());
+    assert!(err(&o).contains("hapctl keygen"), "{}", err(&o));
+    assert!(!calls.exists());
+    // Unauthenticated only on request, and loudly.
+    let o = run_env(&["start"], &[("HAP_INSECURE", "1")]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(err(&o).contains("UNAUTHENTICATED"), "{}", err(&o));
+    let c = std::fs::read_to_string(&calls).unwrap();
+    assert!(c.contains("proto --insecure --port 5001"), "{c}");
+    assert!(run(&["stop"]).status.success());
+    std::fs::remove_file(&calls).unwrap();
+    // With a key: the bridge gets it.
+    assert!(hapctl(&d, &["keygen", key.to_str().unwrap()])
+        .status
+        .success());
     let o = run(&["start", "--period-us", "2000"]);
     assert!(
         o.status.success(),
@@ -245,6 +280,10 @@ fn launch_script_starts_and_stops_with_fake_tools() {
     let c = std::fs::read_to_string(&calls).unwrap();
     assert!(
         c.contains(&format!("insmod {} period_us=2000", ko.display())),
+        "{c}"
+    );
+    assert!(
+        c.contains(&format!("proto --key {} --port 5001", key.display())),
         "{c}"
     );
     let pid: i32 = std::fs::read_to_string(d.join("proto_interface.pid"))
