@@ -759,11 +759,7 @@ impl Gate {
                 session: 0,
                 ..i.header
             };
-            let v1 = v1_from_payload(
-                FrameType::OpenSession,
-                &h,
-                &self.kernel_nonce.to_be_bytes(),
-            );
+            let v1 = v1_from_payload(FrameType::OpenSession, &h, &self.kernel_nonce.to_be_bytes());
             return match v1 {
                 Some(w) => Action::Forward(w),
                 None => self.malformed_reply(i, DecodeError::LengthMismatch),
@@ -980,7 +976,8 @@ impl ClientAuth {
                 v1[..n].copy_from_slice(w.bytes());
             }
             _ => {
-                let w = v1_from_payload(ty, &hv1, &b[HEADER_LEN..body]).ok_or(Refusal::Malformed)?;
+                let w =
+                    v1_from_payload(ty, &hv1, &b[HEADER_LEN..body]).ok_or(Refusal::Malformed)?;
                 v1[..n].copy_from_slice(w.bytes());
             }
         }

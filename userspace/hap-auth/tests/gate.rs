@@ -168,7 +168,11 @@ fn a_client_with_the_wrong_key_gets_nothing_through() {
     let keys = SessionKeys::derive(&other_key(), &[0x22; NONCE_LEN], &[1; NONCE_LEN]);
     let forged = seal_request(&keys, &hdr(2, s, 0), &vpr(9)).unwrap();
     assert_eq!(rig.datagram(forged.bytes()), Err(Refusal::BadTag));
-    assert_eq!(rig.forwarded.len(), 1, "only the real open reached PROTO_IN");
+    assert_eq!(
+        rig.forwarded.len(),
+        1,
+        "only the real open reached PROTO_IN"
+    );
     assert!(!rig.kernel.vpr().valid);
     assert_eq!(rig.refused[&Refusal::BadTag], 2);
 }
@@ -326,7 +330,11 @@ fn strangers_and_v1_frames_are_refused_silently() {
     let mut rig = Rig::new(Psk::test_key());
     // v1 frames: unauthenticated.
     let mut v1 = [0u8; MAX_FRAME_LEN];
-    let n = encode(&hdr(1, 0, 0), &Frame::OpenSession { client_nonce: 1 }, &mut v1);
+    let n = encode(
+        &hdr(1, 0, 0),
+        &Frame::OpenSession { client_nonce: 1 },
+        &mut v1,
+    );
     assert_eq!(rig.datagram(&v1[..n]), Err(Refusal::Unauthenticated));
     // No session: a request is refused before any key is tried.
     let keys = SessionKeys::derive(&Psk::test_key(), &[0; 16], &[0; 16]);

@@ -71,12 +71,12 @@ fn vectors() -> Vec<(&'static str, Wire)> {
         torque: v3(0.0, 0.125, 0.0),
     };
     let req = |seq: u32, control: u16, f: Frame| {
-        ("K_c2s", seal_request(&keys, &h(seq, 7, control), &f).unwrap())
+        (
+            "K_c2s",
+            seal_request(&keys, &h(seq, 7, control), &f).unwrap(),
+        )
     };
-    let mut v = vec![(
-        "K_open",
-        seal_open(&psk, &h(1, 0, CTRL_ACK_REQUEST), &NC),
-    )];
+    let mut v = vec![("K_open", seal_open(&psk, &h(1, 0, CTRL_ACK_REQUEST), &NC))];
     v.push(req(2, 0, Frame::CloseSession));
     v.push(req(3, CTRL_ACK_REQUEST, Frame::SetBaseFrame(pose)));
     v.push(req(4, 0, Frame::SetObservationFrame(Pose::default())));
@@ -146,10 +146,7 @@ fn vectors() -> Vec<(&'static str, Wire)> {
             rejected_seq: 13,
         },
     ));
-    v.push((
-        "K_refuse",
-        seal_refusal(&psk, &NC, &h(505, 0, 0), 1),
-    ));
+    v.push(("K_refuse", seal_refusal(&psk, &NC, &h(505, 0, 0), 1)));
     v
 }
 
@@ -201,7 +198,11 @@ fn generated() -> String {
 }
 
 fn doc_path() -> String {
-    concat!(env!("CARGO_MANIFEST_DIR"), "/../../Documentation/protocol.md").to_string()
+    concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../Documentation/protocol.md"
+    )
+    .to_string()
 }
 
 #[test]
@@ -263,7 +264,10 @@ fn rfc2104(key: &[u8], msg: &[u8]) -> [u8; 32] {
     }
     let ipad: Vec<u8> = k.iter().map(|b| b ^ 0x36).collect();
     let opad: Vec<u8> = k.iter().map(|b| b ^ 0x5c).collect();
-    let inner = Sha256::new().chain_update(&ipad).chain_update(msg).finalize();
+    let inner = Sha256::new()
+        .chain_update(&ipad)
+        .chain_update(msg)
+        .finalize();
     Sha256::new()
         .chain_update(&opad)
         .chain_update(inner)

@@ -292,7 +292,7 @@ impl ProtoIn {
     }
 
     fn was_acked(&self, seq: u32, ty: FrameType) -> bool {
-        self.acked.iter().any(|a| *a == Some((seq, ty)))
+        self.acked.contains(&Some((seq, ty)))
     }
 
     fn remember_ack(&mut self, seq: u32, ty: FrameType) {

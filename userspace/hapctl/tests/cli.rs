@@ -224,7 +224,11 @@ fn launch_script_starts_and_stops_with_fake_tools() {
         ),
     )
     .unwrap();
-    Command::new("chmod").arg("+x").arg(&proto).status().unwrap();
+    Command::new("chmod")
+        .arg("+x")
+        .arg(&proto)
+        .status()
+        .unwrap();
     let key = d.join("hap.key");
     let ko = d.join("hapticctrl.ko");
     std::fs::write(&ko, "").unwrap();
@@ -323,7 +327,9 @@ fn keygen_writes_a_private_key_once() {
     assert_eq!(hap_auth::Psk::load(&key).unwrap(), k1);
     // Two keys differ.
     let key2 = d.join("hap2.key");
-    assert!(hapctl(&d, &["keygen", key2.to_str().unwrap()]).status.success());
+    assert!(hapctl(&d, &["keygen", key2.to_str().unwrap()])
+        .status
+        .success());
     assert_ne!(hap_auth::Psk::load(&key2).unwrap(), k1);
     let _ = std::fs::remove_dir_all(&d);
 }

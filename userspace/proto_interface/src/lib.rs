@@ -187,7 +187,7 @@ impl Bridge {
             client: Mutex::new(None),
             stop: AtomicBool::new(false),
             fatal: Mutex::new(None),
-            gate: cfg.key.clone().map(|k| Mutex::new(Gate::new(k))),
+            gate: cfg.key.map(|k| Mutex::new(Gate::new(k))),
         });
         if shared.gate.is_none() {
             shared.counters.insecure.store(1, Ordering::Relaxed);

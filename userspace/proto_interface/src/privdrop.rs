@@ -85,7 +85,13 @@ pub fn drop_to(ids: Ids, keep_nice: bool) -> Result<()> {
     // local, initialised structures that outlive each call.
     unsafe {
         check(
-            libc::prctl(libc::PR_SET_KEEPCAPS, libc::c_ulong::from(keep_nice), 0, 0, 0),
+            libc::prctl(
+                libc::PR_SET_KEEPCAPS,
+                libc::c_ulong::from(keep_nice),
+                0,
+                0,
+                0,
+            ),
             "prctl(PR_SET_KEEPCAPS)",
         )?;
         check(libc::setgroups(0, std::ptr::null()), "setgroups")?;
@@ -105,11 +111,18 @@ pub fn drop_to(ids: Ids, keep_nice: bool) -> Result<()> {
             CapData::default(),
         ];
         check(
-            libc::syscall(libc::SYS_capset, &mut hdr as *mut CapHeader, data.as_ptr()) as libc::c_int,
+            libc::syscall(libc::SYS_capset, &mut hdr as *mut CapHeader, data.as_ptr())
+                as libc::c_int,
             "capset",
         )?;
-        check(libc::prctl(libc::PR_SET_KEEPCAPS, 0, 0, 0, 0), "prctl(PR_SET_KEEPCAPS, 0)")?;
-        check(libc::prctl(libc::PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "prctl(PR_SET_NO_NEW_PRIVS)")?;
+        check(
+            libc::prctl(libc::PR_SET_KEEPCAPS, 0, 0, 0, 0),
+            "prctl(PR_SET_KEEPCAPS, 0)",
+        )?;
+        check(
+            libc::prctl(libc::PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0),
+            "prctl(PR_SET_NO_NEW_PRIVS)",
+        )?;
         // The way back must be closed.
         if libc::setuid(0) == 0 {
             return Err(Error::other("setuid(0) still succeeds after the drop"));
@@ -187,6 +200,9 @@ mod tests {
         let mut st = 0;
         // SAFETY: waiting for our own child with a valid out pointer.
         unsafe { libc::waitpid(pid, &mut st, 0) };
-        assert!(libc::WIFEXITED(st) && libc::WEXITSTATUS(st) == 0, "status {st}");
+        assert!(
+            libc::WIFEXITED(st) && libc::WEXITSTATUS(st) == 0,
+            "status {st}"
+        );
     }
 }

@@ -195,7 +195,11 @@ fn only_the_key_holder_gets_through() {
     // v1 and a wrong key: refused, nothing reaches rtf_in, no reply.
     let stranger = rig.socket();
     let mut b = [0u8; MAX_FRAME_LEN];
-    let n = encode(&hdr(1, 0, 0), &Frame::OpenSession { client_nonce: 1 }, &mut b);
+    let n = encode(
+        &hdr(1, 0, 0),
+        &Frame::OpenSession { client_nonce: 1 },
+        &mut b,
+    );
     stranger.send(&b[..n]).unwrap();
     let mut wrong_key = *Psk::test_key().as_bytes();
     wrong_key[0] ^= 1;
@@ -300,7 +304,11 @@ fn spoofed_and_forged_datagrams_never_reach_the_kernel() {
     let after = c.seal(&hdr(20_000, s, 0), &vpr()).unwrap();
     sock.send(after.bytes()).unwrap();
     let fwd = rig.forwarded();
-    assert_eq!(fwd.len(), 2, "only the real frame and the one after the flood");
+    assert_eq!(
+        fwd.len(),
+        2,
+        "only the real frame and the one after the flood"
+    );
     assert_eq!(decode(&fwd[0]).unwrap().0.seq, 11);
     assert_eq!(decode(&fwd[1]).unwrap().0.seq, 20_000);
     assert_eq!(rig.stat("rejected_replay"), 1);

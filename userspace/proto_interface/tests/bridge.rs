@@ -194,7 +194,8 @@ impl Drop for Rig {
 fn forwards_drops_and_routes() {
     let mut rig = Rig::start("fwd", &["--insecure", "--refusal-budget", "0"]);
     let a = rig.client();
-    std::thread::sleep(Duration::from_millis(100));
+    rig.signal(libc::SIGUSR1);
+    std::thread::sleep(Duration::from_millis(200));
     assert_eq!(rig.stat("insecure"), 1, "{}", rig.stats());
     let b = rig.client();
 

@@ -1062,10 +1062,7 @@ mod tests {
         assert!(parse_address("127.0.0.1#70000").is_err());
         assert!(parse_address("#5000").is_err());
         assert!(parse_address("127.0.0.1#0").is_err());
-        assert_eq!(
-            parse_address("127.0.0.1#5001?key=/k").unwrap().port(),
-            5001
-        );
+        assert_eq!(parse_address("127.0.0.1#5001?key=/k").unwrap().port(), 5001);
         assert_eq!(
             split_options("h#1?key=/etc/hap.key").unwrap(),
             ("h#1", Some("/etc/hap.key"))

@@ -119,7 +119,11 @@ fn without_the_key_nothing_happens() {
     let mut other = *Psk::test_key().as_bytes();
     other[5] ^= 0x10;
     let e = VirtContext::open_with(&p.addr, quick(Some(Psk::from_bytes(other))));
-    assert!(matches!(e, Err(VirtError::Timeout("open_session"))), "{:?}", e.err());
+    assert!(
+        matches!(e, Err(VirtError::Timeout("open_session"))),
+        "{:?}",
+        e.err()
+    );
     // v1 (no key anywhere).
     if std::env::var_os(virtuose_api::KEY_ENV).is_none() {
         let e = VirtContext::open_with(&p.addr, quick(None));
@@ -146,7 +150,8 @@ fn the_key_file_in_the_address() {
     let e = VirtContext::open_with(&url, quick(None));
     assert!(
         matches!(&e, Err(VirtError::InvalidArgument(m)) if m.contains("chmod 600")),
-        "{:?}", e.err()
+        "{:?}",
+        e.err()
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -314,7 +314,9 @@ fn run(args: Args) -> Result<(), String> {
     };
     let mut world = World::default();
     let key = match &args.key {
-        Some(p) => Some(virtuose_api::Psk::load(p).map_err(|e| format!("key {}: {e}", p.display()))?),
+        Some(p) => {
+            Some(virtuose_api::Psk::load(p).map_err(|e| format!("key {}: {e}", p.display()))?)
+        }
         None => None,
     };
     let opts = Options {
