@@ -210,14 +210,30 @@ pub fn refuse_key(psk: &Psk, nc: &[u8; NONCE_LEN]) -> Key {
     hmac(&psk.0, &[LABEL_REFUSE, nc])
 }
 
+/// An HMAC-SHA-256 instance already keyed (its inner and outer pads
+/// hashed once), cloned for each frame.
+fn keyed(key: &[u8]) -> HmacSha256 {
+    <HmacSha256 as Mac>::new_from_slice(key).expect("HMAC takes any key length")
+}
+
 /// The two directional keys of one session.
-#[derive(Clone, PartialEq, Eq)]
+#[derive(Clone)]
 pub struct SessionKeys {
     /// Client → controller: HMAC(PSK, "hapticctrl v2 c2s" ‖ Nc ‖ Ns).
     pub c2s: Key,
     /// Controller → client: HMAC(PSK, "hapticctrl v2 s2c" ‖ Nc ‖ Ns).
     pub s2c: Key,
+    c2s_mac: HmacSha256,
+    s2c_mac: HmacSha256,
 }
+
+impl PartialEq for SessionKeys {
+    fn eq(&self, o: &Self) -> bool {
+        self.c2s == o.c2s && self.s2c == o.s2c
+    }
+}
+
+impl Eq for SessionKeys {}
 
 impl std::fmt::Debug for SessionKeys {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -227,9 +243,13 @@ impl std::fmt::Debug for SessionKeys {
 
 impl SessionKeys {
     pub fn derive(psk: &Psk, nc: &[u8; NONCE_LEN], ns: &[u8; NONCE_LEN]) -> SessionKeys {
+        let c2s = hmac(&psk.0, &[LABEL_C2S, nc, ns]);
+        let s2c = hmac(&psk.0, &[LABEL_S2C, nc, ns]);
         SessionKeys {
-            c2s: hmac(&psk.0, &[LABEL_C2S, nc, ns]),
-            s2c: hmac(&psk.0, &[LABEL_S2C, nc, ns]),
+            c2s_mac: keyed(&c2s),
+            s2c_mac: keyed(&s2c),
+            c2s,
+            s2c,
         }
     }
 }
@@ -349,8 +369,10 @@ impl Refusal {
     }
 }
 
-fn tag(key: &Key, body: &[u8], len: usize) -> [u8; TAG_LEN] {
-    let full = hmac(key, &[body]);
+fn tag(mac: &HmacSha256, body: &[u8], len: usize) -> [u8; TAG_LEN] {
+    let mut m = mac.clone();
+    m.update(body);
+    let full: Key = m.finalize().into_bytes().into();
     let mut t = [0u8; TAG_LEN];
     for (d, s) in t.iter_mut().zip(full.iter()).take(len) {
         *d = *s;
@@ -360,12 +382,12 @@ fn tag(key: &Key, body: &[u8], len: usize) -> [u8; TAG_LEN] {
 
 /// Verify the tag at the end of `frame` (its length already checked) in
 /// constant time.
-fn verify(key: &Key, frame: &[u8], tlen: usize) -> bool {
+fn verify(mac: &HmacSha256, frame: &[u8], tlen: usize) -> bool {
     let Some(body_len) = frame.len().checked_sub(tlen) else {
         return false;
     };
     let (body, t) = frame.split_at(body_len);
-    let mut m = <HmacSha256 as Mac>::new_from_slice(key).expect("HMAC takes any key length");
+    let mut m = mac.clone();
     m.update(body);
     m.verify_truncated_left(t).is_ok()
 }
@@ -416,6 +438,10 @@ fn be32(b: &[u8], at: usize) -> u32 {
 
 /// Seal `header ‖ payload` of type `ty` under `key`.
 pub fn seal_raw(key: &Key, ty: FrameType, h: &FrameHeader, payload: &[u8]) -> Wire {
+    seal_with(&keyed(key), ty, h, payload)
+}
+
+fn seal_with(mac: &HmacSha256, ty: FrameType, h: &FrameHeader, payload: &[u8]) -> Wire {
     let mut w = Wire {
         buf: [0u8; MAX_FRAME_LEN],
         len: frame_len(ty),
@@ -424,7 +450,7 @@ pub fn seal_raw(key: &Key, ty: FrameType, h: &FrameHeader, payload: &[u8]) -> Wi
     put_header(&mut w.buf, VERSION, ty, h);
     let body = HEADER_LEN + payload.len();
     w.buf[HEADER_LEN..body].copy_from_slice(payload);
-    let t = tag(key, &w.buf[..body], tag_len(ty));
+    let t = tag(mac, &w.buf[..body], tag_len(ty));
     let tl = tag_len(ty);
     w.buf[body..body + tl].copy_from_slice(&t[..tl]);
     w.len = body + tl;
@@ -446,7 +472,7 @@ pub fn seal_request(keys: &SessionKeys, h: &FrameHeader, frame: &Frame) -> Optio
     let mut v1 = [0u8; MAX_FRAME_LEN];
     let n = hap_core::protocol::encode(h, frame, &mut v1);
     let payload = v1.get(HEADER_LEN..n.checked_sub(4)?)?;
-    Some(seal_raw(&keys.c2s, ty, h, payload))
+    Some(seal_with(&keys.c2s_mac, ty, h, payload))
 }
 
 /// The controller's `session_ack` for Nc/Ns under the session's s2c key.
@@ -461,7 +487,7 @@ pub fn seal_session_ack(
     p[..NONCE_LEN].copy_from_slice(nc);
     p[NONCE_LEN..2 * NONCE_LEN].copy_from_slice(ns);
     p[2 * NONCE_LEN..].copy_from_slice(&period_us.to_be_bytes());
-    seal_raw(&keys.s2c, FrameType::SessionAck, h, &p)
+    seal_with(&keys.s2c_mac, FrameType::SessionAck, h, &p)
 }
 
 /// The bridge's `error` refusing an authenticated `open_session` (reason
@@ -477,6 +503,10 @@ pub fn seal_refusal(psk: &Psk, nc: &[u8; NONCE_LEN], h: &FrameHeader, rejected_s
 /// ack, error) into its v2 form under `s2c`. `None` for anything else
 /// (a session_ack is built with [`seal_session_ack`]).
 pub fn seal_reply_from_v1(s2c: &Key, v1: &[u8]) -> Option<Wire> {
+    seal_reply_with(&keyed(s2c), v1)
+}
+
+fn seal_reply_with(s2c: &HmacSha256, v1: &[u8]) -> Option<Wire> {
     let (h, f) = decode(v1).ok()?;
     let ty = f.frame_type();
     let state = |status: u32, alarms: u32| ((alarms & 0xFFFF) << 16) | (status & 0xFFFF);
@@ -491,7 +521,7 @@ pub fn seal_reply_from_v1(s2c: &Key, v1: &[u8]) -> Option<Wire> {
                 timestamp_us: a.cycle,
                 ..h
             };
-            Some(seal_raw(s2c, ty, &h2, &p))
+            Some(seal_with(s2c, ty, &h2, &p))
         }
         Frame::AnswerTwist(a) => {
             let mut p = [0u8; 32];
@@ -502,11 +532,11 @@ pub fn seal_reply_from_v1(s2c: &Key, v1: &[u8]) -> Option<Wire> {
                 timestamp_us: a.cycle,
                 ..h
             };
-            Some(seal_raw(s2c, ty, &h2, &p))
+            Some(seal_with(s2c, ty, &h2, &p))
         }
         Frame::Ack { .. } | Frame::Error { .. } => {
             let end = v1.len().checked_sub(4)?;
-            Some(seal_raw(s2c, ty, &h, v1.get(HEADER_LEN..end)?))
+            Some(seal_with(s2c, ty, &h, v1.get(HEADER_LEN..end)?))
         }
         _ => None,
     }
@@ -616,7 +646,7 @@ struct GateSession {
 /// the nonces already used.
 pub struct Gate {
     psk: Psk,
-    k_open: Key,
+    k_open: HmacSha256,
     session: Option<GateSession>,
     nonces: Vec<[u8; NONCE_LEN]>,
     nonces_next: usize,
@@ -635,7 +665,7 @@ impl std::fmt::Debug for Gate {
 impl Gate {
     pub fn new(psk: Psk) -> Gate {
         Gate {
-            k_open: open_key(&psk),
+            k_open: keyed(&open_key(&psk)),
             psk,
             session: None,
             nonces: Vec::new(),
@@ -694,7 +724,7 @@ impl Gate {
         let Some(s) = self.session.as_ref().filter(|s| !s.closed) else {
             return Err(Refusal::NoSession);
         };
-        if !verify(&s.keys.c2s, b, TAG_LEN) {
+        if !verify(&s.keys.c2s_mac, b, TAG_LEN) {
             return Err(Refusal::BadTag);
         }
         if header.session != s.id || s.id == 0 {
@@ -850,7 +880,7 @@ impl Gate {
             s.id = h.session;
             return Some(seal_session_ack(&s.keys, &h, &s.nc, &s.ns, period_us));
         }
-        let w = seal_reply_from_v1(&s.keys.s2c, v1)?;
+        let w = seal_reply_with(&s.keys.s2c_mac, v1)?;
         if let Frame::Ack {
             acked_type,
             acked_seq,
@@ -927,7 +957,7 @@ impl ClientAuth {
             let mut ns = [0u8; NONCE_LEN];
             ns.copy_from_slice(&b[HEADER_LEN + NONCE_LEN..HEADER_LEN + 2 * NONCE_LEN]);
             let keys = SessionKeys::derive(&self.psk, &nc, &ns);
-            if !verify(&keys.s2c, b, tl) {
+            if !verify(&keys.s2c_mac, b, tl) {
                 return Err(Refusal::BadTag);
             }
             let period_us = be32(b, HEADER_LEN + 2 * NONCE_LEN);
@@ -937,7 +967,7 @@ impl ClientAuth {
         }
         if ty == FrameType::Error && h.session == 0 {
             if let Some(nc) = self.pending {
-                if verify(&refuse_key(&self.psk, &nc), b, tl) {
+                if verify(&keyed(&refuse_key(&self.psk, &nc)), b, tl) {
                     return Ok((
                         h,
                         Reply::HandshakeRefused {
@@ -948,7 +978,7 @@ impl ClientAuth {
             }
         }
         let keys = self.keys.as_ref().ok_or(Refusal::NoSession)?;
-        if !verify(&keys.s2c, b, tl) {
+        if !verify(&keys.s2c_mac, b, tl) {
             return Err(Refusal::BadTag);
         }
         // Back to the v1 layout, then hap-core's decoder checks the payload.
