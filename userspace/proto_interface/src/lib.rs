@@ -56,8 +56,8 @@ pub struct Config {
     /// The pre-shared key (protocol v2); `None`: unauthenticated v1
     /// (`--insecure`).
     pub key: Option<Psk>,
-    /// Refused datagrams per second and source before that source is dropped
-    /// unexamined (0: no limit).
+    /// Refused datagrams per second and source address before that source is
+    /// dropped unexamined (0: no limit).
     pub refusal_budget: u32,
 }
 

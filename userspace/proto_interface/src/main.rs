@@ -57,9 +57,9 @@ struct Args {
     /// --rt-priority is given. The group must own the two FIFO devices.
     #[arg(long, value_name = "USER[:GROUP]")]
     user: Option<String>,
-    /// Refused datagrams per second a source (IP address) may send before
-    /// its datagrams are dropped unexamined (0: no limit). The session's
-    /// client address is never limited.
+    /// Refused datagrams per second a source address (IP and port) may send
+    /// before its datagrams are dropped unexamined (0: no limit). The
+    /// session's client address is never limited.
     #[arg(long, default_value_t = 1000)]
     refusal_budget: u32,
 }

@@ -1,12 +1,13 @@
-//! Per-source budget for refused datagrams: a source (IP address) whose
-//! datagrams keep being refused gets a token bucket; once it is empty, that
-//! source's datagrams are dropped before any tag is computed (counted as
-//! `rate_limited`), so a flood costs the bridge a hash-map lookup, not an
-//! HMAC. The session's client (its exact address) is never limited: a
-//! spoofer sharing its IP address cannot starve it.
+//! Per-source budget for refused datagrams: a source address (IP and port)
+//! whose datagrams keep being refused gets a token bucket; once it is empty,
+//! that source's datagrams are dropped before any tag is computed (counted
+//! as `rate_limited`), so a flood costs the bridge a hash-map lookup, not an
+//! HMAC. Per address, not per IP: a client behind the same NAT as a flooder
+//! (or, with QEMU's user network, every host process) opens its session from
+//! a fresh port with a full budget. The session's client is never limited.
 
 use std::collections::HashMap;
-use std::net::{IpAddr, SocketAddr};
+use std::net::SocketAddr;
 use std::time::Instant;
 
 /// Sources tracked at most; beyond, the table is cleared (an attacker
@@ -19,12 +20,12 @@ struct Bucket {
     last: Instant,
 }
 
-/// Token buckets of refusals per source IP.
+/// Token buckets of refusals per source address.
 #[derive(Debug)]
 pub struct RateLimit {
     per_s: f64,
     burst: f64,
-    buckets: HashMap<IpAddr, Bucket>,
+    buckets: HashMap<SocketAddr, Bucket>,
 }
 
 impl RateLimit {
@@ -48,11 +49,11 @@ impl RateLimit {
         if self.per_s <= 0.0 || client == Some(src) {
             return true;
         }
-        let Some(mut b) = self.buckets.get(&src.ip()).copied() else {
+        let Some(mut b) = self.buckets.get(&src).copied() else {
             return true;
         };
         self.refill(&mut b, now);
-        self.buckets.insert(src.ip(), b);
+        self.buckets.insert(src, b);
         b.tokens >= 1.0
     }
 
@@ -61,17 +62,17 @@ impl RateLimit {
         if self.per_s <= 0.0 || client == Some(src) {
             return;
         }
-        if self.buckets.len() >= MAX_SOURCES && !self.buckets.contains_key(&src.ip()) {
+        if self.buckets.len() >= MAX_SOURCES && !self.buckets.contains_key(&src) {
             self.buckets.clear();
         }
         let burst = self.burst;
-        let mut b = self.buckets.get(&src.ip()).copied().unwrap_or(Bucket {
+        let mut b = self.buckets.get(&src).copied().unwrap_or(Bucket {
             tokens: burst,
             last: now,
         });
         self.refill(&mut b, now);
         b.tokens = (b.tokens - 1.0).max(0.0);
-        self.buckets.insert(src.ip(), b);
+        self.buckets.insert(src, b);
     }
 }
 
@@ -94,7 +95,10 @@ mod tests {
             r.charge(a(1, 6000), client, t);
         }
         assert!(!r.allow(a(1, 6000), client, t));
-        assert!(!r.allow(a(1, 7000), client, t), "per IP, not per port");
+        assert!(
+            r.allow(a(1, 7000), client, t),
+            "another port: its own budget"
+        );
         assert!(r.allow(a(1, 5000), client, t), "the client's own address");
         assert!(r.allow(a(2, 6000), client, t), "another source");
         assert!(r.allow(a(1, 6000), client, t + Duration::from_millis(150)));
@@ -111,7 +115,7 @@ mod tests {
         let mut r = RateLimit::new(1);
         let t = Instant::now();
         for i in 0..(MAX_SOURCES as u32 + 10) {
-            let ip = IpAddr::from(i.to_be_bytes());
+            let ip = std::net::IpAddr::from(i.to_be_bytes());
             r.charge(SocketAddr::new(ip, 1), None, t);
         }
         assert!(r.buckets.len() <= MAX_SOURCES);
