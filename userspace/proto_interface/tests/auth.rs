@@ -61,12 +61,26 @@ impl Rig {
     /// open_session with a session_ack (session 7) and every request asking
     /// for it with an ack, as PROTO_IN does.
     fn start(tag: &str, extra: &[&str]) -> Rig {
+        Rig::start_as(tag, extra, None)
+    }
+
+    /// As `start`; with `fifo_gid`, the two FIFOs belong to that group with
+    /// mode 0660 (what the launch script does for the bridge's user).
+    fn start_as(tag: &str, extra: &[&str], fifo_gid: Option<u32>) -> Rig {
         let dir = tmpdir(tag);
         let key = dir.join("key");
         Psk::test_key().write_new(&key).unwrap();
         let (rin, rout) = (dir.join("rtf_in"), dir.join("rtf_out"));
         mkfifo(&rin);
         mkfifo(&rout);
+        if let Some(gid) = fifo_gid {
+            use std::os::unix::fs::PermissionsExt;
+            for p in [&rin, &rout] {
+                std::os::unix::fs::chown(p, Some(0), Some(gid)).unwrap();
+                std::fs::set_permissions(p, std::fs::Permissions::from_mode(0o660)).unwrap();
+            }
+            std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+        }
         let mut child = Command::new(env!("CARGO_BIN_EXE_proto_interface"))
             .args(["--bind", "127.0.0.1", "--port", "0", "--print-addr"])
             .arg("--key")
@@ -323,4 +337,41 @@ fn spoofed_and_forged_datagrams_never_reach_the_kernel() {
         rig.stat("received"),
         rig.stat("forwarded") + rig.stat("rejected")
     );
+}
+
+/// As root only: the bridge drops to an unprivileged user that can use the
+/// two FIFOs (group, mode 0660) and nothing else, with no capability left,
+/// and still serves the key holder.
+#[test]
+fn runs_unprivileged_with_only_the_fifos() {
+    // SAFETY: getuid has no preconditions.
+    if unsafe { libc::getuid() } != 0 {
+        eprintln!("skipped: not root");
+        return;
+    }
+    let rig = Rig::start_as("priv", &["--user", "65534:65534"], Some(65534));
+    let sock = rig.socket();
+    let mut c = ClientAuth::new(Psk::test_key());
+    let s = handshake(&sock, &mut c, 5);
+    sock.send(c.seal(&hdr(2, s, 0), &vpr()).unwrap().bytes())
+        .unwrap();
+    assert_eq!(rig.forwarded().len(), 2);
+    let st = std::fs::read_to_string(format!("/proc/{}/status", rig.child.id())).unwrap();
+    let field = |k: &str| {
+        st.lines()
+            .find(|l| l.starts_with(k))
+            .map(|l| {
+                l[k.len()..]
+                    .split_whitespace()
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            })
+            .unwrap()
+    };
+    assert_eq!(field("Uid:"), "65534 65534 65534 65534");
+    assert_eq!(field("Gid:"), "65534 65534 65534 65534");
+    assert_eq!(field("Groups:"), "");
+    assert_eq!(field("CapEff:"), "0000000000000000");
+    assert_eq!(field("CapPrm:"), "0000000000000000");
+    assert_eq!(field("NoNewPrivs:"), "1");
 }
