@@ -1031,6 +1031,15 @@ mod tests {
     }
 
     #[test]
+    fn refusal_indices_and_names() {
+        let mut names = std::collections::HashSet::new();
+        for (i, r) in Refusal::ALL.iter().enumerate() {
+            assert_eq!(r.index(), i);
+            assert!(names.insert(r.name()), "{}", r.name());
+        }
+    }
+
+    #[test]
     fn hex_round_trip_and_bad_keys() {
         let k = Psk::test_key();
         assert_eq!(Psk::parse_hex(&k.to_hex()).unwrap(), k);
