@@ -18,6 +18,7 @@
 #                   else proto_interface from PATH)
 #   HAP_PROTO_ARGS  extra arguments for proto_interface (e.g. "--port 5000")
 #   HAP_RUN         directory for the pid and log files (default /run, else /tmp)
+#   HAP_DEV         where the module's devices appear (default /dev; for tests)
 #   HAP_KEY         the client's pre-shared key file, mode 0600 (default
 #                   /etc/hapticctrl/hap.key; `hapctl keygen FILE` writes one):
 #                   the bridge authenticates every datagram (protocol v2)
@@ -38,6 +39,7 @@ set -u
 HERE=$(cd "$(dirname "$0")" && pwd)
 RUN=${HAP_RUN:-/run}
 [ -d "$RUN" ] && [ -w "$RUN" ] || RUN=/tmp
+DEV=${HAP_DEV:-/dev}
 PIDFILE=$RUN/proto_interface.pid
 LOGFILE=$RUN/proto_interface.log
 MODNAME=hapticctrl
@@ -179,19 +181,19 @@ start() {
     say "module $ko inserted${params:+ with$params}"
     # 3. the bridge's group may use the two FIFO devices, and nothing else.
     if [ -n "$group" ]; then
-        for d in /dev/hap_rtf_in /dev/hap_rtf_out; do
+        for d in "$DEV/hap_rtf_in" "$DEV/hap_rtf_out"; do
             n=0
             while [ ! -e "$d" ] && [ $n -lt 20 ]; do sleep 0.1 2>/dev/null || sleep 1; n=$((n + 1)); done
             chgrp "$group" "$d" && chmod 0660 "$d" || die "cannot give $d to group $group"
         done
-        say "bridge runs as $user; /dev/hap_rtf_in and /dev/hap_rtf_out: group $group, mode 0660"
+        say "bridge runs as $user; $DEV/hap_rtf_in and $DEV/hap_rtf_out: group $group, mode 0660"
     fi
 }
 
 stop() {
     rc=0
-    if [ -e /dev/hap_stop ]; then
-        echo 1 >/dev/hap_stop 2>/dev/null && say "stop requested (fail-safe)"
+    if [ -e "$DEV/hap_stop" ]; then
+        echo 1 >"$DEV/hap_stop" 2>/dev/null && say "stop requested (fail-safe)"
     fi
     if pid=$(proto_pid); then
         kill -TERM "$pid" 2>/dev/null

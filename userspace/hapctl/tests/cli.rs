@@ -302,6 +302,46 @@ fn launch_script_starts_and_stops_with_fake_tools() {
     let o = run(&["stop"]);
     assert!(o.status.success(), "{}", err(&o));
     assert!(String::from_utf8_lossy(&o.stdout).contains("proto_interface stopped"));
+    // As root, with a user for the bridge: its own stats directory, and the
+    // two FIFO devices (here plain files) given to its group, mode 0660.
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    if std::fs::metadata("/proc/self").map(|m| m.uid()).ok() == Some(0) {
+        let dev = d.join("dev");
+        std::fs::create_dir_all(&dev).unwrap();
+        for n in ["hap_rtf_in", "hap_rtf_out", "hap_power"] {
+            std::fs::write(dev.join(n), "").unwrap();
+            std::fs::set_permissions(dev.join(n), std::fs::Permissions::from_mode(0o600)).unwrap();
+        }
+        let o = run_env(
+            &["start"],
+            &[
+                ("HAP_USER", "nobody:nogroup"),
+                ("HAP_DEV", dev.to_str().unwrap()),
+            ],
+        );
+        assert!(o.status.success(), "{}", err(&o));
+        let c = std::fs::read_to_string(&calls).unwrap();
+        assert!(
+            c.contains(&format!(
+                "--user nobody:nogroup --stats-file {}/hapticctrl/proto_interface.stats",
+                d.display()
+            )),
+            "{c}"
+        );
+        for n in ["hap_rtf_in", "hap_rtf_out"] {
+            let m = std::fs::metadata(dev.join(n)).unwrap();
+            assert_eq!((m.gid(), m.mode() & 0o777), (65534, 0o660), "{n}");
+        }
+        let m = std::fs::metadata(dev.join("hap_power")).unwrap();
+        assert_eq!((m.gid(), m.mode() & 0o777), (0, 0o600), "only the FIFOs");
+        assert_eq!(
+            std::fs::metadata(d.join("hapticctrl")).unwrap().uid(),
+            65534
+        );
+        assert!(run_env(&["stop"], &[("HAP_DEV", dev.to_str().unwrap())])
+            .status
+            .success());
+    }
     assert!(!d.join("proto_interface.pid").exists());
     std::thread::sleep(std::time::Duration::from_millis(100));
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
