@@ -65,6 +65,9 @@ pub struct Config {
 pub struct Shared {
     pub counters: Counters,
     pub client: Mutex<Option<SocketAddr>>,
+    /// The client whose CloseSession was forwarded last: the kernel's ack or
+    /// error for it (and nothing else) is still sent there.
+    pub closed_by: Mutex<Option<SocketAddr>>,
     pub stop: AtomicBool,
     /// Set by a thread that hit a fatal condition (device gone...).
     pub fatal: Mutex<Option<String>>,
@@ -185,6 +188,7 @@ impl Bridge {
         let shared = Arc::new(Shared {
             counters: Counters::default(),
             client: Mutex::new(None),
+            closed_by: Mutex::new(None),
             stop: AtomicBool::new(false),
             fatal: Mutex::new(None),
             gate: cfg.key.map(|k| Mutex::new(Gate::new(k))),
@@ -489,6 +493,9 @@ fn publish_session(shared: &Shared, session: &Session) {
     if let Ok(mut c) = shared.client.lock() {
         *c = session.client();
     }
+    if let Ok(mut c) = shared.closed_by.lock() {
+        *c = session.closed_by();
+    }
     let c = &shared.counters;
     c.sessions_opened.store(session.opened, Ordering::Relaxed);
     c.sessions_closed.store(session.closed, Ordering::Relaxed);
@@ -528,7 +535,13 @@ fn client_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
             }
             Ok(n) => {
                 Counters::inc(&shared.counters.answers);
-                let Some(to) = shared.client() else {
+                // Acks and errors of a closing client still reach it.
+                let is_reply = buf.get(3).is_some_and(|t| {
+                    *t == hap_core::protocol::FrameType::Ack as u8
+                        || *t == hap_core::protocol::FrameType::Error as u8
+                });
+                let closing = || shared.closed_by.lock().ok().and_then(|c| *c);
+                let Some(to) = shared.client().or_else(|| closing().filter(|_| is_reply)) else {
                     Counters::inc(&shared.counters.answers_no_client);
                     continue;
                 };

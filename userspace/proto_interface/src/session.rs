@@ -39,6 +39,9 @@ pub enum Decision {
 #[derive(Debug)]
 pub struct Session {
     client: Option<SocketAddr>,
+    /// The client that closed the session last (its close is still to be
+    /// acknowledged by the kernel).
+    closed_by: Option<SocketAddr>,
     last_seen: Instant,
     timeout: Duration,
     /// Sessions opened, closed by the client, expired by the timeout.
@@ -51,6 +54,7 @@ impl Session {
     pub fn new(timeout: Duration) -> Session {
         Session {
             client: None,
+            closed_by: None,
             last_seen: Instant::now(),
             timeout,
             opened: 0,
@@ -62,6 +66,16 @@ impl Session {
     /// The pinned client, if a session is open.
     pub fn client(&self) -> Option<SocketAddr> {
         self.client
+    }
+
+    /// The client that sent the last `CloseSession` (the kernel's ack of it
+    /// goes there), until a new session opens.
+    pub fn closed_by(&self) -> Option<SocketAddr> {
+        if self.client.is_none() {
+            self.closed_by
+        } else {
+            None
+        }
     }
 
     /// Expire the session if the client has been silent too long.
@@ -87,7 +101,7 @@ impl Session {
                     self.opened += 1;
                 }
                 if kind == FrameKind::CloseSession {
-                    self.client = None;
+                    self.closed_by = self.client.take();
                     self.closed += 1;
                 }
                 Decision::Forward

@@ -274,6 +274,17 @@ fn only_the_key_holder_gets_through() {
     assert!(rig.forwarded().is_empty());
     assert_eq!(rig.stat("rejected_stray_source"), 1);
     assert_eq!(rig.stat("refusals_answered"), 1);
+
+    // close_session is acknowledged to the closing client.
+    let w = c
+        .seal(&hdr(4, s, CTRL_ACK_REQUEST), &Frame::CloseSession)
+        .unwrap();
+    sock.send(w.bytes()).unwrap();
+    let n = sock.recv(&mut buf).expect("the ack of close_session");
+    assert!(matches!(
+        c.open(&buf[..n]).unwrap().1,
+        Reply::Frame(Frame::Ack { acked_seq: 4, .. })
+    ));
 }
 
 #[test]
