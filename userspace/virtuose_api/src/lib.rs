@@ -903,6 +903,10 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
                         inner.cond.notify_all();
                         continue;
                     }
+                    // A controller frame before our session_ack (the servo
+                    // may answer the new session first): no keys yet,
+                    // ignored as v1 ignores answers before the ack.
+                    Err(hap_auth::Refusal::NoSession) => continue,
                     Err(_) => None,
                 }
             }
