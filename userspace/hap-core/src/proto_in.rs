@@ -22,7 +22,9 @@
 //!   but inside the window and not seen yet (reordered by the network), is
 //!   applied; a duplicate or a frame older than the window is dropped as
 //!   `Stale`, never applied twice. A `VprStream` older than the current VPr
-//!   is counted but does not replace it (`vpr_accept`).
+//!   is counted but does not replace it (`vpr_accept`), and a reordered
+//!   configuration or power request is not applied over a newer request of
+//!   the same setting (counted in `superseded`, acknowledged all the same).
 //! - Retransmission is idempotent: a duplicate of one of the last
 //!   [`REACK_MEMORY`] acknowledged requests (same sequence number, same type,
 //!   `CTRL_ACK_REQUEST`) gets the same `Ack` again and changes nothing
@@ -45,6 +47,25 @@ use super::protocol::{
 /// How many acknowledged requests PROTO_IN remembers to acknowledge a
 /// retransmitted copy again.
 pub const REACK_MEMORY: usize = 8;
+
+/// Settings a request changes; a reordered request is not applied over a
+/// newer one of the same setting.
+const SLOTS: usize = 8;
+
+/// The setting `frame` changes, if it is a configuration or power request.
+const fn slot(frame: &Frame) -> Option<usize> {
+    match frame {
+        Frame::SetBaseFrame(_) => Some(0),
+        Frame::SetObservationFrame(_) => Some(1),
+        Frame::SetFactors { .. } => Some(2),
+        Frame::SetTimeStep(_) => Some(3),
+        Frame::SetCommandType(_) => Some(4),
+        Frame::SetIndexingMode(_) => Some(5),
+        Frame::AttachVirtualObject(_) | Frame::DetachVirtualObject => Some(6),
+        Frame::PowerRequest(_) => Some(7),
+        _ => None,
+    }
+}
 use super::vp::VpReceived;
 
 /// Why PROTO_IN dropped a frame.
@@ -110,6 +131,9 @@ pub struct ProtoCounters {
     pub replies: u64,
     /// Duplicates of acknowledged requests answered with the same ack again.
     pub retransmits_reacked: u64,
+    /// Reordered requests not applied because a newer request of the same
+    /// setting already was (acknowledged all the same).
+    pub superseded: u64,
 }
 
 impl ProtoCounters {
@@ -136,6 +160,8 @@ pub struct ProtoIn {
     /// (sequence number, type) of the last acknowledged requests, a ring.
     acked: [Option<(u32, FrameType)>; REACK_MEMORY],
     acked_next: usize,
+    /// Sequence number of the last applied request of each setting.
+    applied: [Option<u32>; SLOTS],
     vpr: VpReceived,
     config: ServoConfig,
     counters: ProtoCounters,
@@ -156,6 +182,7 @@ impl ProtoIn {
             window: SeqWindow::new(),
             acked: [None; REACK_MEMORY],
             acked_next: 0,
+            applied: [None; SLOTS],
             vpr: VpReceived::default(),
             config: ServoConfig::default(),
             counters: ProtoCounters::default(),
@@ -187,6 +214,7 @@ impl ProtoIn {
         self.session = 0;
         self.window.clear();
         self.acked = [None; REACK_MEMORY];
+        self.applied = [None; SLOTS];
         self.vpr = VpReceived::default();
         self.config = ServoConfig::default();
     }
@@ -319,6 +347,20 @@ impl ProtoIn {
             out.session_change = Some(false);
             return;
         }
+        if let Some(i) = slot(frame) {
+            if let Some(newest) = self.applied.get(i).copied().flatten() {
+                if super::protocol::seq_newer(newest, header.seq) {
+                    // Reordered behind a newer request of the same setting:
+                    // that one stands (the ack still tells the client its
+                    // request arrived).
+                    self.counters.superseded = self.counters.superseded.saturating_add(1);
+                    return;
+                }
+            }
+            if let Some(a) = self.applied.get_mut(i) {
+                *a = Some(header.seq);
+            }
+        }
         if apply_to_config(frame, &mut self.config) {
             self.counters.config_frames = self.counters.config_frames.saturating_add(1);
             out.config_changed = true;
@@ -350,7 +392,7 @@ impl ProtoIn {
 
 #[cfg(test)]
 mod tests {
-    use super::super::config::CommandType;
+    use super::super::config::{CommandType, IndexingMode};
     use super::super::fixed::{Fx, Pose, Twist};
     use super::super::protocol::{encode, FrameType, MAX_FRAME_LEN};
     use super::*;
@@ -525,16 +567,28 @@ mod tests {
         assert_eq!(p.counters().retransmits_reacked, 1);
         assert_eq!(p.counters().config_frames, 1);
         // A reordered configuration frame (older than the newest VPr, never
-        // seen) is applied and acked.
+        // seen) is applied and acked...
         let late = handle(
             &mut p,
             s,
             4,
             CTRL_ACK_REQUEST,
-            &Frame::SetCommandType(CommandType::VirtMech),
+            &Frame::SetIndexingMode(IndexingMode::Trans),
         );
         assert!(late.config_changed);
-        assert_eq!(p.config().command_type, CommandType::VirtMech);
+        assert_eq!(p.config().indexing_mode, IndexingMode::Trans);
+        // ...but not over a newer request of the same setting (seq 5).
+        let older = handle(
+            &mut p,
+            s,
+            3,
+            CTRL_ACK_REQUEST,
+            &Frame::SetCommandType(CommandType::VirtMech),
+        );
+        assert!(!older.config_changed);
+        assert!(matches!(older.reply, Some(Frame::Ack { acked_seq: 3, .. })));
+        assert_eq!(p.config().command_type, CommandType::Impedance);
+        assert_eq!(p.counters().superseded, 1);
         // A duplicate of an un-acked frame, or of another type, is stale.
         assert_eq!(
             handle(&mut p, s, 6, CTRL_ACK_REQUEST, &vpr_frame(1)).rejected,
