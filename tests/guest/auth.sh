@@ -26,6 +26,7 @@ last=0; quiet=0; t=0
 while [ $t -lt $((max_s * 10)) ]; do
   usleep 100000
   t=$((t + 1))
+  kill -0 "$bp" 2>/dev/null || { fail "the bridge is gone ($(tail -3 /run/proto_interface.log | tr '\n' ' '); $(grep -E '^(state|fail_safe):' /dev/hap_stats | tr '\n' ' '))"; break; }
   r=$(pv rejected); v=$(pv verified)
   [ "${v:-0}" -gt 0 ] && break
   if [ "${r:-0}" -gt 0 ] && [ "$r" = "$last" ]; then quiet=$((quiet + 1)); else quiet=0; fi
