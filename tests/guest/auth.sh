@@ -21,13 +21,17 @@ usleep 500000
 hapctl log > /tmp/attack.csv &
 logger=$!
 echo "HAP-READY period_us=$period"
-pv() { kill -USR1 "$bp" 2>/dev/null; usleep 50000; sed -n "s/^$1: *//p" /run/proto_interface.stats | head -1; }
+pv() { kill -USR1 "$bp" 2>/dev/null; usleep 50000; sed -n "s/^$1: *//p" /run/proto_interface.stats 2>/dev/null | head -1; }
 last=0; quiet=0; t=0
 while [ $t -lt $((max_s * 10)) ]; do
   usleep 100000
   t=$((t + 1))
   kill -0 "$bp" 2>/dev/null || { fail "the bridge is gone ($(tail -3 /run/proto_interface.log | tr '\n' ' '); $(grep -E '^(state|fail_safe):' /dev/hap_stats | tr '\n' ' '))"; break; }
   r=$(pv rejected); v=$(pv verified)
+  if [ -z "$r" ]; then
+    missing=$((${missing:-0} + 1))
+    [ "$missing" -ge 20 ] && { fail "no bridge counters ($(ls -ln /run/hapticctrl 2>&1 | tr '\n' ' '); $(tail -4 /run/proto_interface.log | tr '\n' ' '))"; break; }
+  fi
   [ "${v:-0}" -gt 0 ] && break
   if [ "${r:-0}" -gt 0 ] && [ "$r" = "$last" ]; then quiet=$((quiet + 1)); else quiet=0; fi
   last=$r
