@@ -150,13 +150,19 @@ start() {
     group=""
     stats="$RUN/proto_interface.stats"
     if [ -n "$user" ]; then
-        group=${user#*:}
-        [ "$group" = "$user" ] && group=$(id -gn "${user%%:*}" 2>/dev/null)
-        [ -n "$group" ] || die "HAP_USER=$user: no such user"
+        # Numeric ids from /etc/passwd and /etc/group (the bridge resolves the
+        # names the same way; no NSS needed).
+        uname=${user%%:*}
+        uid=$(awk -F: -v n="$uname" '$1 == n { print $3; exit }' /etc/passwd 2>/dev/null)
+        case "$user" in
+            *:*) gname=${user#*:}; group=$(awk -F: -v n="$gname" '$1 == n { print $3; exit }' /etc/group 2>/dev/null) ;;
+            *) group=$(awk -F: -v n="$uname" '$1 == n { print $4; exit }' /etc/passwd 2>/dev/null) ;;
+        esac
+        [ -n "$uid" ] && [ -n "$group" ] || die "HAP_USER=$user: no such user or group in /etc/passwd, /etc/group"
         # The bridge, unprivileged, rewrites its counters in a directory of
         # its own; the usual path points there.
         mkdir -p "$RUN/hapticctrl"
-        chown "${user%%:*}:$group" "$RUN/hapticctrl"
+        chown "$uid:$group" "$RUN/hapticctrl" || die "cannot give $RUN/hapticctrl to $user"
         stats="$RUN/hapticctrl/proto_interface.stats"
         ln -sf hapticctrl/proto_interface.stats "$RUN/proto_interface.stats"
         auth="$auth --user $user --stats-file $stats"
