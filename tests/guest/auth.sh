@@ -16,6 +16,7 @@ check "the user grips the handle, no effort" sh -c 'echo "live 0 0 0 0 0 0" > /d
 check "arm powered" hapctl power on
 bp=$(pidof proto_interface)
 echo "HAP-BRIDGE-ID uid=$(sed -n 's/^Uid:[[:space:]]*\([0-9]*\).*/\1/p' /proc/$bp/status) gid=$(sed -n 's/^Gid:[[:space:]]*\([0-9]*\).*/\1/p' /proc/$bp/status) capeff=$(sed -n 's/^CapEff:[[:space:]]*//p' /proc/$bp/status)"
+echo "HAP-RUNDIR $(ls -lnd /run /run/hapticctrl | tr '\n' ' ') $(ls -ln /run | tr '\n' ' ')"
 echo "HAP-DEVICES $(ls -ln /dev/hap_rtf_in /dev/hap_rtf_out | awk '{ printf "%s:%s:%s ", $1, $3, $4 }')"
 usleep 500000
 hapctl log > /tmp/attack.csv &
@@ -30,7 +31,7 @@ while [ $t -lt $((max_s * 10)) ]; do
   r=$(pv rejected); v=$(pv verified)
   if [ -z "$r" ]; then
     missing=$((${missing:-0} + 1))
-    [ "$missing" -ge 20 ] && { fail "no bridge counters ($(ls -ln /run/hapticctrl 2>&1 | tr '\n' ' '); $(tail -4 /run/proto_interface.log | tr '\n' ' '))"; break; }
+    [ "$missing" -ge 20 ] && { fail "no bridge counters ($(ls -ln /run/hapticctrl 2>&1 | tr '\n' ' '); $(grep -v '^[a-z_]*: ' /run/proto_interface.log | tail -6 | tr '\n' ' '))"; break; }
   fi
   [ "${v:-0}" -gt 0 ] && break
   if [ "${r:-0}" -gt 0 ] && [ "$r" = "$last" ]; then quiet=$((quiet + 1)); else quiet=0; fi
