@@ -36,6 +36,12 @@ extern "C" {
 #define VIRT_E_CLOSED            VIRT_E_INVALID_CONTEXT
 #define VIRT_E_NULL_POINTER      VIRT_E_INVALID_CONTEXT
 
+/* virtOpen (declared in VirtuoseAPI.h): "host#port" (port defaults to 5000).
+ * Authenticated (protocol v2) with a pre-shared key file (hapctl keygen,
+ * mode 0600): "host#port?key=/path/to/key", or the file named by the
+ * environment variable HAP_KEY_FILE. Without a key: unauthenticated v1,
+ * which the bridge refuses unless it runs with --insecure. */
+
 /* hapticctrl extension: answers/s, loss ratio (0..1), last round trip (ms). */
 int virtGetLinkStats(VirtContext vc, float *rate_hz, float *loss_ratio, float *rtt_ms);
 

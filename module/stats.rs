@@ -144,6 +144,12 @@ fn render(sh: &Shared, out: &mut [u8]) -> usize {
         writeln!(w, "vpr_frames: {}", proto_counters.vpr_frames)?;
         writeln!(w, "config_frames: {}", proto_counters.config_frames)?;
         writeln!(w, "replies: {}", proto_counters.replies)?;
+        writeln!(
+            w,
+            "retransmits_reacked: {}",
+            proto_counters.retransmits_reacked
+        )?;
+        writeln!(w, "superseded: {}", proto_counters.superseded)?;
         for (name, v) in Reject::PROTOCOL_NAMES
             .iter()
             .zip(proto_counters.protocol_rejects.iter())

@@ -72,7 +72,9 @@ link_boot() {
   [ -n "$port" ] || die "no free UDP port in 48000-48999"
   local glog="$out/link-guest.log" t0; t0=$(date +%s)
   local qpid
-  read -r qpid _ < <(bash "$HERE/qemu-run.sh" --background "--$variant" --icount-sleep --period-us "$link_period_us" \
+  # Authenticated like the product: the host clients find the key in HAP_KEY_FILE.
+  HAP_KEY_FILE=$(hap_keyfile "$HAP_ROOT/build/hap-test.key"); export HAP_KEY_FILE
+  read -r qpid _ < <(bash "$HERE/qemu-run.sh" --background "--$variant" --icount-sleep --period-us "$link_period_us" --key "$HAP_KEY_FILE" \
     --udp "$port:5000" --log "$glog" --extra "$HAP_ROOT/tests/data/walk.eff:/data/effort.eff" \
     "$HAP_ROOT/tests/faults/link-guest.sh" "$link_period_us")
   local cpids=()

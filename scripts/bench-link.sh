@@ -17,6 +17,9 @@
 #   --max-seconds T   stop the client after T s of real time even if fewer
 #                     than N requests were sent (the report says so)
 #   --no-plot         do not render rtt_hist/rate plots with hapctl
+#   --insecure        unauthenticated protocol v1 (bridge --insecure, client
+#                     without key), to compare with the default v2 (a key in
+#                     build/hap-test.key, every frame authenticated)
 #   --sleep-off       run the guest under --icount (tcg-icount, sleep=off):
 #                     host scheduling cannot make the servo miss, but the
 #                     guest runs faster than real time while it idles, so
@@ -57,7 +60,7 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 ROOT=$HAP_ROOT
 
-samples=100000; interval_us=1000; period_us=1000; port=47310; out=""; plot=1; nice_n=0; shift_s=2; max_seconds=0; qmode=--icount-sleep
+proto=v2; samples=100000; interval_us=1000; period_us=1000; port=47310; out=""; plot=1; nice_n=0; shift_s=2; max_seconds=0; qmode=--icount-sleep
 while [ $# -gt 0 ]; do
   case "$1" in
     --samples) [ $# -ge 2 ] || die "--samples needs a value"; hap_uint "$1" "$2"; samples=$2; shift ;;
@@ -67,6 +70,7 @@ while [ $# -gt 0 ]; do
     --port) [ $# -ge 2 ] || die "--port needs a value"; hap_uint "$1" "$2"; port=$2; shift ;;
     --out) [ $# -ge 2 ] || die "--out needs a value"; out=$2; shift ;;
     --no-plot) plot=0 ;;
+    --insecure) proto=v1 ;;
     --sleep-off) qmode=--icount ;;
     --max-seconds) [ $# -ge 2 ] || die "--max-seconds needs a value"; hap_uint "$1" "$2"; max_seconds=$2; shift ;;
     --icount-shift) [ $# -ge 2 ] || die "--icount-shift needs a value"; hap_uint "$1" "$2"; shift_s=$2; shift ;;
@@ -96,8 +100,13 @@ python3 -c "import socket,sys; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM
 max_s=$(( samples * interval_us / 1000000 * 2 + 180 ))
 t_boot=$(date +%s)
 load0=$(cut -d' ' -f1-3 /proc/loadavg)
+if [ "$proto" = v2 ]; then
+  key=$(hap_keyfile "$ROOT/build/hap-test.key"); bridge_auth=(--key "$key"); client_auth=(--key "$key")
+else
+  bridge_auth=(--insecure-bridge); client_auth=()
+fi
 read -r qpid qlog < <(HAP_ICOUNT_SHIFT=$shift_s nice -n "$nice_n" bash "$HERE/qemu-run.sh" --background "$qmode" --udp "$port:5000" \
-  --log "$out/guest.log" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" \
+  --log "$out/guest.log" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" "${bridge_auth[@]}" \
   "$ROOT/tests/guest/serve.sh" "$period_us" "$max_s")
 trap 'kill "$qpid" 2>/dev/null || true' EXIT
 for _ in $(seq 1200); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
@@ -105,7 +114,7 @@ grep -q HAP-READY "$qlog" || { tail -30 "$qlog" >&2; die "the guest did not get 
 t_ready=$(date +%s)
 log "guest ready after $((t_ready - t_boot)) s; client: $samples requests every $interval_us us -> 127.0.0.1:$port"
 
-nice -n "$nice_n" "$demo" --server "127.0.0.1#$port" --headless --samples "$samples" --duration "$max_seconds" --interval-us "$interval_us" \
+nice -n "$nice_n" "$demo" --server "127.0.0.1#$port" "${client_auth[@]+"${client_auth[@]}"}" --headless --samples "$samples" --duration "$max_seconds" --interval-us "$interval_us" \
   --timeout-ms 300 --bench --results "$out/client" > "$out/client.txt" 2>&1 &
 dpid=$!
 trap 'kill "$dpid" "$qpid" 2>/dev/null || true' EXIT
@@ -136,9 +145,9 @@ between HAP-STATS > "$out/hap_stats.txt"
 between HAP-PROTO > "$out/proto_interface.txt"
 
 python3 - "$out" "$samples" "$interval_us" "$period_us" "$crc" \
-  "$((t_ready - t_boot))" "$((t_client - t_ready))" "$((t_end - t_boot))" "$load0" "$load1" "$(nproc)" "$nice_n" "$shift_s" > "$out/report.txt" <<'PY'
+  "$((t_ready - t_boot))" "$((t_client - t_ready))" "$((t_end - t_boot))" "$load0" "$load1" "$(nproc)" "$nice_n" "$shift_s" "$proto" > "$out/report.txt" <<'PY'
 import re, sys
-out, samples, interval, period, crc, boot_s, client_s, wall_s, load0, load1, ncpu, nice_n, shift_s = sys.argv[1:]
+out, samples, interval, period, crc, boot_s, client_s, wall_s, load0, load1, ncpu, nice_n, shift_s, proto = sys.argv[1:]
 def kv(path):
     d = {}
     try:
@@ -154,6 +163,7 @@ log = open(f"{out}/guest.log", errors="replace").read()
 mode = (re.search(r"hap\.mode=(\S+)", log) or [None, "unknown"])[1]
 if mode == "tcg-icount-sleep":
     mode += f" shift={shift_s}"
+mode += ", protocol v2 (authenticated)" if proto == "v2" else ", protocol v1 (unauthenticated, --insecure)"
 problems = re.findall(r".*(?:Kernel panic|Oops|WARNING:|BUG:|Call Trace|rust_panic|panicked at).*", log)
 g = lambda d, k: d.get(k, "?")
 def f(x, fmt="{:.1f}"):

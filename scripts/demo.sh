@@ -37,7 +37,9 @@ mkdir -p "$results"
 accel_opts=(--icount-sleep); period_us=${period_us:-1000}
 if [ "${HAP_ACCEL:-}" = kvm ]; then accel_opts=(--accel kvm); fi
 port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
-read -r qpid qlog < <(bash "$HERE/qemu-run.sh" --background "${accel_opts[@]}" --udp "$port:5000" \
+# Authenticated (protocol v2): one key for the bridge in the guest and the client.
+key=$(hap_keyfile "$HAP_ROOT/build/hap-demo.key")
+read -r qpid qlog < <(bash "$HERE/qemu-run.sh" --background "${accel_opts[@]}" --udp "$port:5000" --key "$key" \
   --log "$results/guest.log" --extra "$HAP_ROOT/tests/data/walk.eff:/data/effort.eff" \
   "$HAP_ROOT/tests/guest/serve.sh" "$period_us" $((duration + 120)))
 trap 'kill $qpid 2>/dev/null || true' EXIT
@@ -46,7 +48,7 @@ grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; die "the guest did not start (l
 mode=$(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' "$qlog" | head -1)
 log "guest up (accelerator: $mode, servo period ${period_us} us); controller at 127.0.0.1:$port"
 
-client=("$HAP_ROOT/userspace/target/release/virtuose_demo" --server "127.0.0.1#$port" --duration "$duration" --results "$results")
+client=("$HAP_ROOT/userspace/target/release/virtuose_demo" --server "127.0.0.1#$port" --key "$key" --duration "$duration" --results "$results")
 if [ "$headless" = 1 ]; then client+=(--headless); else client+=(--http "$http"); log "3D page: http://$http/ (the client prints it too)"; fi
 "${client[@]}" | tee "$results/client.txt"
 

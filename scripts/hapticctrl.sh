@@ -18,6 +18,17 @@
 #                   else proto_interface from PATH)
 #   HAP_PROTO_ARGS  extra arguments for proto_interface (e.g. "--port 5000")
 #   HAP_RUN         directory for the pid and log files (default /run, else /tmp)
+#   HAP_DEV         where the module's devices appear (default /dev; for tests)
+#   HAP_KEY         the client's pre-shared key file, mode 0600 (default
+#                   /etc/hapticctrl/hap.key; `hapctl keygen FILE` writes one):
+#                   the bridge authenticates every datagram (protocol v2)
+#   HAP_INSECURE    1: no key, unauthenticated protocol v1 (proto_interface
+#                   --insecure; default 1 only if /etc/hapticctrl/insecure exists)
+#   HAP_USER        USER[:GROUP] the bridge runs as once it has read its key
+#                   (default hapticctrl if /etc/passwd has it; empty: root).
+#                   The two FIFO devices get that group and mode 0660.
+#
+# Without a key file and without HAP_INSECURE=1, start refuses.
 #
 # Order on stop: write /dev/hap_stop (fail-safe: motors inhibited, power
 # off), stop proto_interface (SIGTERM; it holds the module's devices open, so
@@ -28,6 +39,7 @@ set -u
 HERE=$(cd "$(dirname "$0")" && pwd)
 RUN=${HAP_RUN:-/run}
 [ -d "$RUN" ] && [ -w "$RUN" ] || RUN=/tmp
+DEV=${HAP_DEV:-/dev}
 PIDFILE=$RUN/proto_interface.pid
 LOGFILE=$RUN/proto_interface.log
 MODNAME=hapticctrl
@@ -120,10 +132,45 @@ start() {
     fi
     ko=$(find_module) || exit 1
     proto=$(find_proto) || exit 1
+    key=${HAP_KEY:-/etc/hapticctrl/hap.key}
+    insecure=${HAP_INSECURE:-}
+    [ -z "$insecure" ] && [ -f /etc/hapticctrl/insecure ] && insecure=1
+    if [ -f "$key" ]; then
+        auth="--key $key"
+    elif [ "$insecure" = 1 ]; then
+        auth="--insecure"
+        echo "hapticctrl: WARNING: no key, the bridge runs UNAUTHENTICATED (protocol v1): any host that can reach its port can steer the arm" >&2
+    else
+        die "no key file $key (create one: hapctl keygen $key; copy it to the client) - or HAP_INSECURE=1 for unauthenticated v1"
+    fi
+    user=${HAP_USER-}
+    if [ -z "${HAP_USER+x}" ] && grep -q '^hapticctrl:' /etc/passwd 2>/dev/null; then
+        user=hapticctrl
+    fi
+    group=""
+    stats="$RUN/proto_interface.stats"
+    if [ -n "$user" ]; then
+        # Numeric ids from /etc/passwd and /etc/group (the bridge resolves the
+        # names the same way; no NSS needed).
+        uname=${user%%:*}
+        uid=$(awk -F: -v n="$uname" '$1 == n { print $3; exit }' /etc/passwd 2>/dev/null)
+        case "$user" in
+            *:*) gname=${user#*:}; group=$(awk -F: -v n="$gname" '$1 == n { print $3; exit }' /etc/group 2>/dev/null) ;;
+            *) group=$(awk -F: -v n="$uname" '$1 == n { print $4; exit }' /etc/passwd 2>/dev/null) ;;
+        esac
+        [ -n "$uid" ] && [ -n "$group" ] || die "HAP_USER=$user: no such user or group in /etc/passwd, /etc/group"
+        # The bridge, unprivileged, rewrites its counters in a directory of
+        # its own; the usual path points there.
+        mkdir -p "$RUN/hapticctrl"
+        chown "$uid:$group" "$RUN/hapticctrl" || die "cannot give $RUN/hapticctrl to $user"
+        stats="$RUN/hapticctrl/proto_interface.stats"
+        ln -sf hapticctrl/proto_interface.stats "$RUN/proto_interface.stats"
+        auth="$auth --user $user --stats-file $stats"
+    fi
 
     # 1. the bridge, in the background: it waits for the module's devices.
     # shellcheck disable=SC2086
-    "$proto" ${HAP_PROTO_ARGS:-} >>"$LOGFILE" 2>&1 &
+    "$proto" $auth ${HAP_PROTO_ARGS:-} >>"$LOGFILE" 2>&1 &
     pid=$!
     echo "$pid" >"$PIDFILE"
     sleep 1
@@ -138,12 +185,21 @@ start() {
         die "insmod $ko$params failed"
     fi
     say "module $ko inserted${params:+ with$params}"
+    # 3. the bridge's group may use the two FIFO devices, and nothing else.
+    if [ -n "$group" ]; then
+        for d in "$DEV/hap_rtf_in" "$DEV/hap_rtf_out"; do
+            n=0
+            while [ ! -e "$d" ] && [ $n -lt 20 ]; do sleep 0.1 2>/dev/null || sleep 1; n=$((n + 1)); done
+            chgrp "$group" "$d" && chmod 0660 "$d" || die "cannot give $d to group $group"
+        done
+        say "bridge runs as $user; $DEV/hap_rtf_in and $DEV/hap_rtf_out: group $group, mode 0660"
+    fi
 }
 
 stop() {
     rc=0
-    if [ -e /dev/hap_stop ]; then
-        echo 1 >/dev/hap_stop 2>/dev/null && say "stop requested (fail-safe)"
+    if [ -e "$DEV/hap_stop" ]; then
+        echo 1 >"$DEV/hap_stop" 2>/dev/null && say "stop requested (fail-safe)"
     fi
     if pid=$(proto_pid); then
         kill -TERM "$pid" 2>/dev/null

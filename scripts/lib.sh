@@ -21,6 +21,18 @@ hap_usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit
 # hap_uint OPTION VALUE: die unless VALUE is a non-negative integer.
 hap_uint() { [[ "$2" =~ ^[0-9]+$ ]] || die "$1 needs a non-negative integer, got '$2' (see --help)"; }
 
+# hap_keyfile FILE: make sure FILE holds a pre-shared key for the bridge and
+# its test client (64 hex digits, mode 0600; what `hapctl keygen` writes),
+# creating it if missing; prints FILE.
+hap_keyfile() {
+  if [ ! -f "$1" ]; then
+    mkdir -p "$(dirname "$1")"
+    (umask 077 && python3 -c 'import secrets; print(secrets.token_hex(32))' > "$1") || die "cannot write the key $1"
+  fi
+  chmod 600 "$1"
+  echo "$1"
+}
+
 log() { printf '[hapticctrl %s] %s\n' "$(date +%H:%M:%S)" "$*" >&2; }
 die() { printf '[hapticctrl] error: %s\n' "$*" >&2; exit 1; }
 

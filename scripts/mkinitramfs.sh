@@ -35,8 +35,9 @@ for extra in "$@"; do
   src=${extra%%:*}; dst=${extra#*:}
   mkdir -p "$root/$(dirname "$dst")"; cp "$src" "$root/$dst"
 done
-echo "root:x:0:0:root:/:/bin/sh" >"$root/etc/passwd"
-echo "root:x:0:" >"$root/etc/group"
+# The bridge's unprivileged user (hapticctrl.sh runs proto_interface as it).
+printf 'root:x:0:0:root:/:/bin/sh\nhapticctrl:x:990:990:hapticctrl bridge:/nonexistent:/bin/false\n' >"$root/etc/passwd"
+printf 'root:x:0:\nhapticctrl:x:990:\n' >"$root/etc/group"
 
 cat >"$root/init" <<'INIT'
 #!/bin/sh

@@ -13,6 +13,8 @@
 #   --udp HOST:GUEST    forward UDP 127.0.0.1:HOST to the guest's port GUEST
 #   --log FILE          keep the guest log there (default build/logs/<test>.log)
 #   --extra SRC:DST     add a file to the initramfs (repeatable)
+#   --key FILE          install FILE as the bridge's key (/etc/hapticctrl/hap.key)
+#   --insecure-bridge   no key: the launch script runs the bridge unauthenticated (v1)
 #   --accel tcg|kvm     force the accelerator (default: KVM if a probe boot works)
 #   --period-us N       the servo period the in-guest tests use (hap.period_us=N)
 #   --background        start the guest and return; prints "PID LOG" (for host-side tests)
@@ -22,7 +24,7 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 
 variant=""; period_us=""; icount=0; smp=2; timeout_s=120; udp=""; log=""; accel=${HAP_ACCEL:-}; background=0
-extras=()
+extras=(); insecure_marker=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --debug) variant=debug ;;
@@ -34,10 +36,12 @@ while [ $# -gt 0 ]; do
     --udp) udp=$2; shift ;;
     --log) log=$2; shift ;;
     --extra) extras+=("$2"); shift ;;
+    --key) [ -f "$2" ] || die "--key $2: no such file"; extras+=("$2:/etc/hapticctrl/hap.key"); shift ;;
+    --insecure-bridge) insecure_marker=$(mktemp); extras+=("$insecure_marker:/etc/hapticctrl/insecure") ;;
     --accel) accel=$2; shift ;;
     --background) background=1 ;;
     --period-us) period_us=$2; shift ;;
-    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     --) shift; break ;;
     -*) die "unknown option $1 (see --help)" ;;
     *) break ;;
@@ -56,7 +60,7 @@ name=$(basename "$test_script" .sh)
 mkdir -p "$HAP_ROOT/build/logs"
 log=${log:-$HAP_ROOT/build/logs/$name${variant:+-$variant}.log}
 initrd=$(mktemp --suffix=.cpio.gz)
-trap 'rm -f "$initrd"' EXIT
+trap 'rm -f "$initrd" ${insecure_marker:+"$insecure_marker"}' EXIT
 extra_args=()
 for e in "${extras[@]+"${extras[@]}"}"; do extra_args+=("$e"); done
 bash "$HERE/mkinitramfs.sh" "$initrd" "$ko" "$test_script" "${extra_args[@]+"${extra_args[@]}"}"

@@ -62,7 +62,8 @@ qlog="$dir/guest.log"
 port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 timeout_s=$(( 900 + cycles * period_us / 1000000 * 6 ))
 t0=$(date +%s)
-read -r qpid _ < <(HAP_ICOUNT_SHIFT=$shift_s bash "$HERE/qemu-run.sh" --background --icount-sleep --udp "$port:5000" --timeout "$timeout_s" \
+key=$(hap_keyfile "$ROOT/build/hap-test.key")
+read -r qpid _ < <(HAP_ICOUNT_SHIFT=$shift_s bash "$HERE/qemu-run.sh" --background --icount-sleep --udp "$port:5000" --timeout "$timeout_s" --key "$key" \
   --log "$qlog" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" "${HAP_EXTRAS[@]+"${HAP_EXTRAS[@]}"}" \
   "$ROOT/tests/bench/soak-guest.sh" "$period_us" "$cycles" "$load" "$prio")
 cpid=""
@@ -71,7 +72,7 @@ trap cleanup EXIT
 for _ in $(seq 1800); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
 grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; die "the guest did not get ready"; }
 log "guest ready; client at $rate Hz on UDP 127.0.0.1:$port until the module has run $cycles cycles (progress: $qlog)"
-"$demo" --server "127.0.0.1#$port" --headless --rate "$rate" --timeout-ms 3000 --duration 0 --results "$dir" > "$dir/client.txt" 2>&1 &
+"$demo" --server "127.0.0.1#$port" --key "$key" --headless --rate "$rate" --timeout-ms 3000 --duration 0 --results "$dir" > "$dir/client.txt" 2>&1 &
 cpid=$!
 while kill -0 "$qpid" 2>/dev/null && ! grep -q HAP-SOAK-DONE "$qlog"; do
   sleep 5

@@ -30,7 +30,10 @@ demo="$ROOT/userspace/target/release/virtuose_demo"
 [ -x "$demo" ] || (cd "$ROOT/userspace" && cargo build --release --quiet -p virtuose_demo) || die "cannot build virtuose_demo"
 
 port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
-read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background ${HAP_E2E_QEMU:---icount-sleep} --udp "$port:5000" \
+# Authenticated (protocol v2): the bridge gets the key, so does the test
+# client; the second client has none.
+key=$(hap_keyfile "$ROOT/build/hap-test.key")
+read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background ${HAP_E2E_QEMU:---icount-sleep} --udp "$port:5000" --key "$key" \
   --log "$results/guest.log" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" \
   "$ROOT/tests/guest/serve.sh" "$period_us" $((duration + 60)))
 trap 'kill $qpid 2>/dev/null' EXIT
@@ -42,9 +45,9 @@ if [ "${HAP_E2E_NO_HOSTILE:-0}" = 1 ]; then true & else
 python3 "$ROOT/tests/e2e/udp_garbage.py" 127.0.0.1 "$port" 10000 3 > "$results/garbage.txt" 2>&1 &
 fi
 gpid=$!
-( sleep 4; timeout 30 "$demo" --server "127.0.0.1#$port" --headless --duration 2 --timeout-ms 300 > "$results/second_client.txt" 2>&1; echo $? > "$results/second_client.rc" ) &
+( sleep 4; HAP_KEY_FILE= timeout 30 "$demo" --server "127.0.0.1#$port" --headless --duration 2 --timeout-ms 300 > "$results/second_client.txt" 2>&1; echo $? > "$results/second_client.rc" ) &
 spid=$!
-"$demo" --server "127.0.0.1#$port" --headless --duration "$duration" --results "$results" > "$results/client.txt" 2>&1
+"$demo" --server "127.0.0.1#$port" --key "$key" --headless --duration "$duration" --results "$results" > "$results/client.txt" 2>&1
 crc=$?
 wait "$gpid" "$spid"
 for _ in $(seq 1200); do kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
@@ -76,7 +79,10 @@ check_num "coupling error, mean (m)" "$(sv coupling_error_mean_m)" '<=' 0.005
 [ "$(cat "$results/second_client.rc" 2>/dev/null)" != 0 ] && ok "a second client from another source port is refused" || nok "the second client was not refused: $(tail -2 "$results/second_client.txt")"
 check_num "module: exactly one session opened" "$(gv hap_stats.txt sessions_opened)" '==' 1
 check_num "bridge: hostile datagrams dropped" "$(gv proto_interface.txt rejected)" '>=' 10000
-check_num "bridge: second client's datagrams dropped as stray" "$(gv proto_interface.txt rejected_stray_source)" '>=' 1
+check_num "bridge: the keyless second client's frames refused as unauthenticated" "$(gv proto_interface.txt rejected_unauthenticated_v1)" '>=' 1
+check_num "bridge: authenticated (not --insecure)" "$(gv proto_interface.txt insecure)" '==' 0
+check_num "bridge: runs unprivileged (uid)" "$(sed -n 's/^HAP-BRIDGE-ID uid=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)" '==' 990
+check_num "bridge: no capability left (CapEff)" "$((16#$(sed -n 's/^HAP-BRIDGE-ID.*capeff=\([0-9a-f]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)))" '==' 0
 check_num "module: nothing malformed reached it" "$(gv hap_stats.txt frames_rejected)" '==' 0
 check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
 echo "# module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses) (emulation noise), max consecutive $(gv hap_stats.txt max_consecutive_misses), answers sent $(gv hap_stats.txt answers_sent)"

@@ -58,7 +58,7 @@ expect "(b) no fail-safe" "$(stat_value fail_safe)" = 0
 expect "(b) power state kept ($p1)" "$(stat_value power)" = "$p1"
 c2=$(stat_value cycles)
 expect "(b) the cycle counter went on" "$c2" -gt "$c1"
-proto_interface >>/run/proto_interface.log 2>&1 &
+proto_interface --key /etc/hapticctrl/hap.key --user hapticctrl --stats-file /run/hapticctrl/proto_interface.stats >>/run/proto_interface.log 2>&1 &
 echo $! >/run/proto_interface.pid
 sleep 1
 check "(b) proto_interface restarted (pid $(proto_pid))" kill -0 "$(proto_pid)"

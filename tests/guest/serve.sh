@@ -14,6 +14,8 @@ if [ -f /data/effort.eff ]; then
 else
   check "the user grips the handle" sh -c 'echo "live 0 0 0 0 0 0" > /dev/hap_effort'
 fi
+bp=$(pidof proto_interface)
+echo "HAP-BRIDGE-ID uid=$(sed -n 's/^Uid:[[:space:]]*\([0-9]*\).*/\1/p' /proc/$bp/status) gid=$(sed -n 's/^Gid:[[:space:]]*\([0-9]*\).*/\1/p' /proc/$bp/status) capeff=$(sed -n 's/^CapEff:[[:space:]]*//p' /proc/$bp/status)"
 echo "HAP-READY period_us=$period"
 t=0
 while [ $t -lt $((max_s * 10)) ]; do

@@ -17,8 +17,19 @@
 //!   same session id and changes nothing.
 //! - Every other request must carry the current session id, else it is
 //!   rejected (`NoSession`) and answered with `Error(ERROR_NO_SESSION)`.
-//! - Sequence numbers must grow (RFC 1982 order) within a session: a
-//!   duplicate or older frame is dropped as `Stale`, not applied twice.
+//! - Sequence numbers are checked against an anti-replay window
+//!   ([`SeqWindow`], 64 numbers): a frame newer than the newest, or older
+//!   but inside the window and not seen yet (reordered by the network), is
+//!   applied; a duplicate or a frame older than the window is dropped as
+//!   `Stale`, never applied twice. A `VprStream` older than the current VPr
+//!   is counted but does not replace it (`vpr_accept`), and a reordered
+//!   configuration or power request is not applied over a newer request of
+//!   the same setting (counted in `superseded`, acknowledged all the same).
+//! - Retransmission is idempotent: a duplicate of one of the last
+//!   [`REACK_MEMORY`] acknowledged requests (same sequence number, same type,
+//!   `CTRL_ACK_REQUEST`) gets the same `Ack` again and changes nothing
+//!   (counted in `retransmits_reacked`), so a client whose ack was lost
+//!   gets one by sending the same frame again.
 //! - Frames only the controller sends (answers, acks, errors) are rejected
 //!   as `NotARequest`.
 //! - `CTRL_ACK_REQUEST` in the control word asks for an `Ack` reply.
@@ -30,8 +41,31 @@
 use super::config::ServoConfig;
 use super::protocol::{
     apply_to_config, decode, power_request, vpr_accept, vpr_from, DecodeError, Frame, FrameHeader,
-    CTRL_ACK_REQUEST, ERROR_NO_SESSION,
+    FrameType, SeqCheck, SeqWindow, CTRL_ACK_REQUEST, ERROR_NO_SESSION,
 };
+
+/// How many acknowledged requests PROTO_IN remembers to acknowledge a
+/// retransmitted copy again.
+pub const REACK_MEMORY: usize = 8;
+
+/// Settings a request changes; a reordered request is not applied over a
+/// newer one of the same setting.
+const SLOTS: usize = 8;
+
+/// The setting `frame` changes, if it is a configuration or power request.
+const fn slot(frame: &Frame) -> Option<usize> {
+    match frame {
+        Frame::SetBaseFrame(_) => Some(0),
+        Frame::SetObservationFrame(_) => Some(1),
+        Frame::SetFactors { .. } => Some(2),
+        Frame::SetTimeStep(_) => Some(3),
+        Frame::SetCommandType(_) => Some(4),
+        Frame::SetIndexingMode(_) => Some(5),
+        Frame::AttachVirtualObject(_) | Frame::DetachVirtualObject => Some(6),
+        Frame::PowerRequest(_) => Some(7),
+        _ => None,
+    }
+}
 use super::vp::VpReceived;
 
 /// Why PROTO_IN dropped a frame.
@@ -95,6 +129,11 @@ pub struct ProtoCounters {
     pub config_frames: u64,
     pub sessions_opened: u64,
     pub replies: u64,
+    /// Duplicates of acknowledged requests answered with the same ack again.
+    pub retransmits_reacked: u64,
+    /// Reordered requests not applied because a newer request of the same
+    /// setting already was (acknowledged all the same).
+    pub superseded: u64,
 }
 
 impl ProtoCounters {
@@ -117,8 +156,12 @@ pub struct ProtoIn {
     session: u16,
     session_nonce: u32,
     last_session: u16,
-    last_seq: u32,
-    seq_valid: bool,
+    window: SeqWindow,
+    /// (sequence number, type) of the last acknowledged requests, a ring.
+    acked: [Option<(u32, FrameType)>; REACK_MEMORY],
+    acked_next: usize,
+    /// Sequence number of the last applied request of each setting.
+    applied: [Option<u32>; SLOTS],
     vpr: VpReceived,
     config: ServoConfig,
     counters: ProtoCounters,
@@ -136,8 +179,10 @@ impl ProtoIn {
             session: 0,
             session_nonce: 0,
             last_session: 0,
-            last_seq: 0,
-            seq_valid: false,
+            window: SeqWindow::new(),
+            acked: [None; REACK_MEMORY],
+            acked_next: 0,
+            applied: [None; SLOTS],
             vpr: VpReceived::default(),
             config: ServoConfig::default(),
             counters: ProtoCounters::default(),
@@ -167,7 +212,9 @@ impl ProtoIn {
     /// VPr invalid, configuration back to its safe default.
     pub fn close(&mut self) {
         self.session = 0;
-        self.seq_valid = false;
+        self.window.clear();
+        self.acked = [None; REACK_MEMORY];
+        self.applied = [None; SLOTS];
         self.vpr = VpReceived::default();
         self.config = ServoConfig::default();
     }
@@ -209,8 +256,7 @@ impl ProtoIn {
                 self.last_session = 1;
             }
             self.session = self.last_session;
-            self.last_seq = header.seq;
-            self.seq_valid = true;
+            self.window.reset(header.seq);
             self.counters.sessions_opened = self.counters.sessions_opened.saturating_add(1);
             self.counters.accepted = self.counters.accepted.saturating_add(1);
             out.accepted = true;
@@ -232,11 +278,25 @@ impl ProtoIn {
             self.counters.replies = self.counters.replies.saturating_add(1);
             return out;
         }
-        if self.seq_valid && !super::protocol::seq_newer(header.seq, self.last_seq) {
-            return self.reject(out, Reject::Stale);
+        match self.window.check(header.seq) {
+            SeqCheck::Newer | SeqCheck::InWindow => {}
+            SeqCheck::Duplicate
+                if header.control & CTRL_ACK_REQUEST != 0 && self.was_acked(header.seq, ty) =>
+            {
+                // A retransmission whose ack was lost: the same ack again,
+                // nothing applied twice.
+                self.counters.retransmits_reacked =
+                    self.counters.retransmits_reacked.saturating_add(1);
+                self.counters.replies = self.counters.replies.saturating_add(1);
+                out.reply = Some(Frame::Ack {
+                    acked_type: ty,
+                    acked_seq: header.seq,
+                });
+                return out;
+            }
+            SeqCheck::Duplicate | SeqCheck::TooOld => return self.reject(out, Reject::Stale),
         }
-        self.last_seq = header.seq;
-        self.seq_valid = true;
+        self.window.accept(header.seq);
         self.apply(&header, &frame, now_cycle, &mut out);
         self.counters.accepted = self.counters.accepted.saturating_add(1);
         out.accepted = true;
@@ -246,10 +306,31 @@ impl ProtoIn {
                 acked_seq: header.seq,
             });
         }
+        if let Some(Frame::Ack {
+            acked_type,
+            acked_seq,
+        }) = out.reply
+        {
+            self.remember_ack(acked_seq, acked_type);
+        }
         if out.reply.is_some() {
             self.counters.replies = self.counters.replies.saturating_add(1);
         }
         out
+    }
+
+    fn was_acked(&self, seq: u32, ty: FrameType) -> bool {
+        self.acked.contains(&Some((seq, ty)))
+    }
+
+    fn remember_ack(&mut self, seq: u32, ty: FrameType) {
+        if self.session == 0 {
+            return; // CloseSession: nothing left to re-acknowledge
+        }
+        if let Some(slot) = self.acked.get_mut(self.acked_next) {
+            *slot = Some((seq, ty));
+        }
+        self.acked_next = self.acked_next.wrapping_add(1) % REACK_MEMORY;
     }
 
     fn apply(&mut self, header: &FrameHeader, frame: &Frame, now_cycle: u64, out: &mut Outcome) {
@@ -265,6 +346,20 @@ impl ProtoIn {
             out.config_changed = true;
             out.session_change = Some(false);
             return;
+        }
+        if let Some(i) = slot(frame) {
+            if let Some(newest) = self.applied.get(i).copied().flatten() {
+                if super::protocol::seq_newer(newest, header.seq) {
+                    // Reordered behind a newer request of the same setting:
+                    // that one stands (the ack still tells the client its
+                    // request arrived).
+                    self.counters.superseded = self.counters.superseded.saturating_add(1);
+                    return;
+                }
+            }
+            if let Some(a) = self.applied.get_mut(i) {
+                *a = Some(header.seq);
+            }
         }
         if apply_to_config(frame, &mut self.config) {
             self.counters.config_frames = self.counters.config_frames.saturating_add(1);
@@ -297,7 +392,7 @@ impl ProtoIn {
 
 #[cfg(test)]
 mod tests {
-    use super::super::config::CommandType;
+    use super::super::config::{CommandType, IndexingMode};
     use super::super::fixed::{Fx, Pose, Twist};
     use super::super::protocol::{encode, FrameType, MAX_FRAME_LEN};
     use super::*;
@@ -398,9 +493,18 @@ mod tests {
         assert!(handle(&mut p, s, 10, 0, &vpr_frame(1)).vpr_updated);
         let dup = handle(&mut p, s, 10, 0, &vpr_frame(2));
         assert_eq!(dup.rejected, Some(Reject::Stale));
+        // Reordered inside the window: accepted once, but an older VPr
+        // never replaces a newer one.
         let old = handle(&mut p, s, 9, 0, &vpr_frame(3));
-        assert_eq!(old.rejected, Some(Reject::Stale));
-        assert_eq!(p.vpr().pose.position.x, Fx::from_ratio(1, 100));
+        assert!(old.accepted && !old.vpr_updated);
+        assert_eq!(
+            handle(&mut p, s, 9, 0, &vpr_frame(3)).rejected,
+            Some(Reject::Stale)
+        );
+        assert!(handle(&mut p, s, 200, 0, &vpr_frame(4)).vpr_updated);
+        let too_old = handle(&mut p, s, 200 - 64, 0, &vpr_frame(5));
+        assert_eq!(too_old.rejected, Some(Reject::Stale));
+        assert_eq!(p.vpr().pose.position.x, Fx::from_ratio(4, 100));
         // Wrap-around is newer.
         let mut p = ProtoIn::new();
         let o = handle(
@@ -442,6 +546,58 @@ mod tests {
         let s2 = open_with(&mut p, 7);
         assert_ne!(s2, s);
         assert_eq!(p.config().command_type, CommandType::None);
+    }
+
+    #[test]
+    fn a_retransmitted_request_gets_the_same_ack_and_is_not_reapplied() {
+        let mut p = ProtoIn::new();
+        let s = open(&mut p);
+        let f = Frame::SetCommandType(CommandType::Impedance);
+        let first = handle(&mut p, s, 5, CTRL_ACK_REQUEST, &f);
+        assert!(first.accepted && first.config_changed);
+        // VPr frames overtake it (newer sequence numbers)...
+        for seq in 6..20 {
+            assert!(handle(&mut p, s, seq, 0, &vpr_frame(1)).accepted);
+        }
+        // ...the ack was lost, the client sends the same frame again.
+        let again = handle(&mut p, s, 5, CTRL_ACK_REQUEST | 2, &f);
+        assert_eq!(again.reply, first.reply);
+        assert!(!again.config_changed);
+        assert_eq!(again.rejected, None);
+        assert_eq!(p.counters().retransmits_reacked, 1);
+        assert_eq!(p.counters().config_frames, 1);
+        // A reordered configuration frame (older than the newest VPr, never
+        // seen) is applied and acked...
+        let late = handle(
+            &mut p,
+            s,
+            4,
+            CTRL_ACK_REQUEST,
+            &Frame::SetIndexingMode(IndexingMode::Trans),
+        );
+        assert!(late.config_changed);
+        assert_eq!(p.config().indexing_mode, IndexingMode::Trans);
+        // ...but not over a newer request of the same setting (seq 5).
+        let older = handle(
+            &mut p,
+            s,
+            3,
+            CTRL_ACK_REQUEST,
+            &Frame::SetCommandType(CommandType::VirtMech),
+        );
+        assert!(!older.config_changed);
+        assert!(matches!(older.reply, Some(Frame::Ack { acked_seq: 3, .. })));
+        assert_eq!(p.config().command_type, CommandType::Impedance);
+        assert_eq!(p.counters().superseded, 1);
+        // A duplicate of an un-acked frame, or of another type, is stale.
+        assert_eq!(
+            handle(&mut p, s, 6, CTRL_ACK_REQUEST, &vpr_frame(1)).rejected,
+            Some(Reject::Stale)
+        );
+        assert_eq!(
+            handle(&mut p, s, 5, CTRL_ACK_REQUEST, &Frame::PowerRequest(true)).rejected,
+            Some(Reject::Stale)
+        );
     }
 
     #[test]

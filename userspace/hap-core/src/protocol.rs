@@ -422,6 +422,112 @@ pub const fn seq_newer(a: u32, b: u32) -> bool {
     d != 0 && d < 0x8000_0000
 }
 
+/// Anti-replay window over a sender's sequence numbers (RFC 4303 §3.4.3
+/// style): the newest accepted number and a bitmap of the
+/// [`SeqWindow::SIZE`] numbers below it. A frame is fresh if it is newer
+/// than the newest (serial-number order) or falls inside the window and was
+/// not seen yet; a number seen before is a duplicate, one older than the
+/// window is too old. Used by PROTO_IN (kernel) and by the authenticating
+/// bridge and client (userspace), so both apply the same rule.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SeqWindow {
+    top: u32,
+    seen: u64,
+    valid: bool,
+}
+
+/// What [`SeqWindow::check`] says about a sequence number.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SeqCheck {
+    /// Newer than every accepted number (or the window is empty).
+    Newer,
+    /// Older than the newest, inside the window, not seen yet (reordered).
+    InWindow,
+    /// Already accepted once.
+    Duplicate,
+    /// Older than the window.
+    TooOld,
+}
+
+impl SeqWindow {
+    /// Sequence numbers remembered below the newest (the newest included).
+    pub const SIZE: u32 = 64;
+
+    /// An empty window: the first number is `Newer`.
+    pub const fn new() -> Self {
+        SeqWindow {
+            top: 0,
+            seen: 0,
+            valid: false,
+        }
+    }
+
+    /// Forget everything, then accept `seq` as the newest.
+    pub fn reset(&mut self, seq: u32) {
+        self.top = seq;
+        self.seen = 1;
+        self.valid = true;
+    }
+
+    /// Forget everything.
+    pub fn clear(&mut self) {
+        *self = SeqWindow::new();
+    }
+
+    /// The newest accepted number, if any.
+    pub const fn newest(&self) -> Option<u32> {
+        if self.valid {
+            Some(self.top)
+        } else {
+            None
+        }
+    }
+
+    /// Classify `seq` without changing the window.
+    pub const fn check(&self, seq: u32) -> SeqCheck {
+        if !self.valid || seq_newer(seq, self.top) {
+            return SeqCheck::Newer;
+        }
+        let back = self.top.wrapping_sub(seq);
+        if back >= Self::SIZE {
+            return SeqCheck::TooOld;
+        }
+        if (self.seen >> back) & 1 == 1 {
+            SeqCheck::Duplicate
+        } else {
+            SeqCheck::InWindow
+        }
+    }
+
+    /// Accept `seq` if it is `Newer` or `InWindow`; returns its
+    /// classification (the window changed only for those two).
+    pub fn accept(&mut self, seq: u32) -> SeqCheck {
+        let c = self.check(seq);
+        match c {
+            SeqCheck::Newer => {
+                if self.valid {
+                    let shift = seq.wrapping_sub(self.top);
+                    self.seen = if shift >= Self::SIZE {
+                        0
+                    } else {
+                        self.seen << shift
+                    };
+                    self.seen |= 1;
+                    self.top = seq;
+                } else {
+                    self.reset(seq);
+                }
+            }
+            SeqCheck::InWindow => {
+                let back = self.top.wrapping_sub(seq);
+                self.seen |= 1u64.checked_shl(back).unwrap_or(0);
+            }
+            SeqCheck::Duplicate | SeqCheck::TooOld => {}
+        }
+        c
+    }
+}
+
 /// Length of the frame that starts with `prefix` (at least 4 bytes), from
 /// its type; `None` if the prefix is too short or not a valid frame start.
 /// For reassembling frames from a byte stream (the RT-FIFO handler).
@@ -971,6 +1077,31 @@ mod tests {
         }
         assert_eq!(DecodeError::from_index(DecodeError::COUNT), None);
         assert_eq!(DecodeError::BadCrc.name(), "bad_crc");
+    }
+
+    #[test]
+    fn seq_window_accepts_reordered_once_and_refuses_replays() {
+        let mut w = SeqWindow::new();
+        assert_eq!(w.accept(100), SeqCheck::Newer);
+        assert_eq!(w.accept(105), SeqCheck::Newer);
+        assert_eq!(w.accept(103), SeqCheck::InWindow);
+        assert_eq!(w.accept(103), SeqCheck::Duplicate);
+        assert_eq!(w.accept(105), SeqCheck::Duplicate);
+        assert_eq!(w.accept(100), SeqCheck::Duplicate);
+        assert_eq!(w.accept(105 - 63), SeqCheck::InWindow);
+        assert_eq!(w.accept(105 - 64), SeqCheck::TooOld);
+        assert_eq!(w.accept(105 + 64), SeqCheck::Newer);
+        assert_eq!(w.check(105), SeqCheck::TooOld);
+        assert_eq!(w.accept(106), SeqCheck::InWindow);
+        // Wrap-around.
+        let mut w = SeqWindow::new();
+        w.reset(u32::MAX - 1);
+        assert_eq!(w.accept(1), SeqCheck::Newer);
+        assert_eq!(w.accept(u32::MAX), SeqCheck::InWindow);
+        assert_eq!(w.accept(u32::MAX - 1), SeqCheck::Duplicate);
+        assert_eq!(w.newest(), Some(1));
+        // A jump of more than half the space is "older": refused.
+        assert_eq!(w.accept(1u32.wrapping_add(0x8000_0000)), SeqCheck::TooOld);
     }
 
     #[test]

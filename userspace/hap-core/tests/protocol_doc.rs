@@ -76,14 +76,14 @@ fn samples() -> Vec<(FrameHeader, Frame)> {
                 speed: fx(0.5),
             },
         ),
-        (h(6, 7), Frame::SetTimeStep(fx(0.001))),
+        (h(6, 7), Frame::SetTimeStep(fx(1.0 / 1024.0))),
         (h(7, 7), Frame::SetCommandType(CommandType::Impedance)),
         (h(8, 7), Frame::SetIndexingMode(IndexingMode::Trans)),
         (
             h(9, 7),
             Frame::AttachVirtualObject(VirtualObjectParams {
                 mass: fx(0.5),
-                inertia: v3(0.001, 0.001, 0.002),
+                inertia: v3(1.0 / 1024.0, 1.0 / 1024.0, 1.0 / 512.0),
             }),
         ),
         (h(10, 7), Frame::DetachVirtualObject),

@@ -42,6 +42,11 @@ enum Cmd {
         #[arg(long)]
         script: Option<PathBuf>,
     },
+    /// Write a new pre-shared key (32 random bytes as 64 hex digits) to
+    /// FILE with mode 0600, for the bridge (`proto_interface --key FILE`)
+    /// and its client (`virtOpen("host#port?key=FILE")`). Refuses to
+    /// overwrite an existing file.
+    Keygen { file: PathBuf },
     /// Simulated arm supply power request.
     Power {
         #[arg(value_enum)]
@@ -229,6 +234,13 @@ fn run(cli: Cli) -> Result<(), String> {
             run_script(script, &args)
         }
         Cmd::Stop { script } => run_script(script, &["stop".to_string()]),
+        Cmd::Keygen { file } => {
+            let k = hap_auth::Psk::generate().map_err(|e| format!("/dev/urandom: {e}"))?;
+            k.write_new(&file)
+                .map_err(|e| format!("{}: {e}", file.display()))?;
+            println!("key written to {} (mode 0600)", file.display());
+            Ok(())
+        }
         Cmd::Power { state } => {
             let v: &[u8] = match state {
                 OnOff::On => b"1",

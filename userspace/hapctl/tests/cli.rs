@@ -214,6 +214,22 @@ fn launch_script_starts_and_stops_with_fake_tools() {
         .unwrap();
         Command::new("chmod").arg("+x").arg(&p).status().unwrap();
     }
+    // The bridge: records its arguments, then lives on.
+    let proto = bin.join("fake_proto");
+    std::fs::write(
+        &proto,
+        format!(
+            "#!/bin/sh\necho \"proto $*\" >> {}\nexec sleep 30\n",
+            calls.display()
+        ),
+    )
+    .unwrap();
+    Command::new("chmod")
+        .arg("+x")
+        .arg(&proto)
+        .status()
+        .unwrap();
+    let key = d.join("hap.key");
     let ko = d.join("hapticctrl.ko");
     std::fs::write(&ko, "").unwrap();
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/hapticctrl.sh");
@@ -222,19 +238,42 @@ fn launch_script_starts_and_stops_with_fake_tools() {
         bin.display(),
         std::env::var("PATH").unwrap_or_default()
     );
-    let run = |args: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_hapctl"))
-            .args(args)
+    let run_env = |args: &[&str], env: &[(&str, &str)]| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_hapctl"));
+        c.args(args)
             .arg("--script")
             .arg(&script)
             .env("PATH", &path)
             .env("HAP_MODULE", &ko)
-            .env("HAP_PROTO", "sleep")
-            .env("HAP_PROTO_ARGS", "30")
+            .env("HAP_PROTO", &proto)
+            .env("HAP_PROTO_ARGS", "--port 5001")
+            .env("HAP_KEY", &key)
+            .env("HAP_USER", "")
             .env("HAP_RUN", &d)
-            .output()
-            .unwrap()
+            .env_remove("HAP_INSECURE");
+        for (k, v) in env {
+            c.env(k, v);
+        }
+        c.output().unwrap()
     };
+    let run = |args: &[&str]| run_env(args, &[]);
+    // No key and no HAP_INSECURE: refused, nothing started.
+    let o = run(&["start"]);
+    assert!(!o.status.success());
+    assert!(err(&o).contains("hapctl keygen"), "{}", err(&o));
+    assert!(!calls.exists());
+    // Unauthenticated only on request, and loudly.
+    let o = run_env(&["start"], &[("HAP_INSECURE", "1")]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(err(&o).contains("UNAUTHENTICATED"), "{}", err(&o));
+    let c = std::fs::read_to_string(&calls).unwrap();
+    assert!(c.contains("proto --insecure --port 5001"), "{c}");
+    assert!(run(&["stop"]).status.success());
+    std::fs::remove_file(&calls).unwrap();
+    // With a key: the bridge gets it.
+    assert!(hapctl(&d, &["keygen", key.to_str().unwrap()])
+        .status
+        .success());
     let o = run(&["start", "--period-us", "2000"]);
     assert!(
         o.status.success(),
@@ -245,6 +284,10 @@ fn launch_script_starts_and_stops_with_fake_tools() {
     let c = std::fs::read_to_string(&calls).unwrap();
     assert!(
         c.contains(&format!("insmod {} period_us=2000", ko.display())),
+        "{c}"
+    );
+    assert!(
+        c.contains(&format!("proto --key {} --port 5001", key.display())),
         "{c}"
     );
     let pid: i32 = std::fs::read_to_string(d.join("proto_interface.pid"))
@@ -259,6 +302,46 @@ fn launch_script_starts_and_stops_with_fake_tools() {
     let o = run(&["stop"]);
     assert!(o.status.success(), "{}", err(&o));
     assert!(String::from_utf8_lossy(&o.stdout).contains("proto_interface stopped"));
+    // As root, with a user for the bridge: its own stats directory, and the
+    // two FIFO devices (here plain files) given to its group, mode 0660.
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    if std::fs::metadata("/proc/self").map(|m| m.uid()).ok() == Some(0) {
+        let dev = d.join("dev");
+        std::fs::create_dir_all(&dev).unwrap();
+        for n in ["hap_rtf_in", "hap_rtf_out", "hap_power"] {
+            std::fs::write(dev.join(n), "").unwrap();
+            std::fs::set_permissions(dev.join(n), std::fs::Permissions::from_mode(0o600)).unwrap();
+        }
+        let o = run_env(
+            &["start"],
+            &[
+                ("HAP_USER", "nobody:nogroup"),
+                ("HAP_DEV", dev.to_str().unwrap()),
+            ],
+        );
+        assert!(o.status.success(), "{}", err(&o));
+        let c = std::fs::read_to_string(&calls).unwrap();
+        assert!(
+            c.contains(&format!(
+                "--user nobody:nogroup --stats-file {}/hapticctrl/proto_interface.stats",
+                d.display()
+            )),
+            "{c}"
+        );
+        for n in ["hap_rtf_in", "hap_rtf_out"] {
+            let m = std::fs::metadata(dev.join(n)).unwrap();
+            assert_eq!((m.gid(), m.mode() & 0o777), (65534, 0o660), "{n}");
+        }
+        let m = std::fs::metadata(dev.join("hap_power")).unwrap();
+        assert_eq!((m.gid(), m.mode() & 0o777), (0, 0o600), "only the FIFOs");
+        assert_eq!(
+            std::fs::metadata(d.join("hapticctrl")).unwrap().uid(),
+            65534
+        );
+        assert!(run_env(&["stop"], &[("HAP_DEV", dev.to_str().unwrap())])
+            .status
+            .success());
+    }
     assert!(!d.join("proto_interface.pid").exists());
     std::thread::sleep(std::time::Duration::from_millis(100));
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
@@ -266,4 +349,27 @@ fn launch_script_starts_and_stops_with_fake_tools() {
         stat.is_empty() || stat.contains(") Z"),
         "bridge still alive: {stat}"
     );
+}
+
+#[test]
+fn keygen_writes_a_private_key_once() {
+    use std::os::unix::fs::PermissionsExt;
+    let d = tmpdir("keygen");
+    let key = d.join("hap.key");
+    let o = hapctl(&d, &["keygen", key.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", err(&o));
+    let mode = std::fs::metadata(&key).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o600);
+    let k1 = hap_auth::Psk::load(&key).unwrap();
+    // Never overwritten.
+    let o = hapctl(&d, &["keygen", key.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert_eq!(hap_auth::Psk::load(&key).unwrap(), k1);
+    // Two keys differ.
+    let key2 = d.join("hap2.key");
+    assert!(hapctl(&d, &["keygen", key2.to_str().unwrap()])
+        .status
+        .success());
+    assert_ne!(hap_auth::Psk::load(&key2).unwrap(), k1);
+    let _ = std::fs::remove_dir_all(&d);
 }

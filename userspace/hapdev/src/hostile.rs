@@ -377,7 +377,8 @@ pub fn bridge_counter(b: &[u8]) -> &'static str {
 }
 
 /// The module counter a frame written to rtf_in must land in, next to the
-/// live session `session` (whose sequence numbers are past 16).
+/// live session `session`, whose sequence numbers are past 16 + 64 (seq
+/// 1..=16 is then older than PROTO_IN's anti-replay window: stale).
 pub fn module_counter(b: &[u8], session: u16) -> String {
     if b.len() < MIN_FRAME_LEN || b.len() > MAX_FRAME_LEN || expected_len(b) != Some(b.len()) {
         return "rtf_in.bad_length".into();

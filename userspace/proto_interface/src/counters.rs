@@ -4,20 +4,27 @@
 use std::fmt::Write as _;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use crate::session::Reject;
+use hap_auth::Refusal;
 
 /// All counters. Relaxed atomics: they are statistics, not synchronisation.
 #[derive(Debug, Default)]
 pub struct Counters {
+    /// 1 when the bridge runs unauthenticated v1 (`--insecure`).
+    pub insecure: AtomicU64,
     /// Datagrams received on the UDP socket (valid or not).
     pub received: AtomicU64,
+    /// Datagrams whose tag verified (v2).
+    pub verified: AtomicU64,
+    /// Unauthenticated v1 frames forwarded (`--insecure` only).
+    pub insecure_frames: AtomicU64,
     /// Frames written whole to the kernel's input device.
     pub forwarded: AtomicU64,
-    pub rejected_oversize: AtomicU64,
-    pub rejected_undersize: AtomicU64,
-    pub rejected_malformed: AtomicU64,
-    pub rejected_stray_source: AtomicU64,
-    pub rejected_no_session: AtomicU64,
+    /// Refused datagrams, by reason (`hap_auth::Refusal`).
+    pub refused: [AtomicU64; Refusal::COUNT],
+    /// Replayed acknowledged requests answered with their ack again.
+    pub retransmits_reacked: AtomicU64,
+    /// Authenticated refusals sent (handshake refused, malformed request).
+    pub refusals_answered: AtomicU64,
     /// write() to the input device failed or was short.
     pub write_errors: AtomicU64,
     /// Answer frames read from the kernel's output device.
@@ -26,7 +33,11 @@ pub struct Counters {
     pub sent: AtomicU64,
     /// Answers dropped because no session was open.
     pub answers_no_client: AtomicU64,
+    /// Kernel frames that could not be sealed (no session keys).
+    pub answers_unsealed: AtomicU64,
     pub send_errors: AtomicU64,
+    /// Sessions opened: every open_session forwarded to the kernel (the
+    /// module's `sessions_opened` counts the same).
     pub sessions_opened: AtomicU64,
     pub sessions_closed: AtomicU64,
     pub sessions_expired: AtomicU64,
@@ -37,55 +48,50 @@ impl Counters {
         c.fetch_add(1, Ordering::Relaxed);
     }
 
-    pub fn reject(&self, r: Reject) {
-        Counters::inc(match r {
-            Reject::Oversize => &self.rejected_oversize,
-            Reject::Undersize => &self.rejected_undersize,
-            Reject::Malformed => &self.rejected_malformed,
-            Reject::StraySource => &self.rejected_stray_source,
-            Reject::NoSession => &self.rejected_no_session,
-        });
+    pub fn refuse(&self, r: Refusal) {
+        if let Some(c) = self.refused.get(r.index()) {
+            Counters::inc(c);
+        }
     }
 
-    /// Total rejected datagrams, all reasons.
+    pub fn refused_by(&self, r: Refusal) -> u64 {
+        self.refused
+            .get(r.index())
+            .map_or(0, |c| c.load(Ordering::Relaxed))
+    }
+
+    /// Total refused datagrams, all reasons.
     pub fn rejected(&self) -> u64 {
-        [
-            &self.rejected_oversize,
-            &self.rejected_undersize,
-            &self.rejected_malformed,
-            &self.rejected_stray_source,
-            &self.rejected_no_session,
-        ]
-        .iter()
-        .map(|c| c.load(Ordering::Relaxed))
-        .sum()
+        self.refused.iter().map(|c| c.load(Ordering::Relaxed)).sum()
     }
 
     /// `key: value` lines, one counter a line, plus the session's client.
     pub fn render(&self, client: Option<std::net::SocketAddr>) -> String {
         let l = |c: &AtomicU64| c.load(Ordering::Relaxed);
         let mut s = String::new();
-        let rows: [(&str, u64); 16] = [
-            ("received", l(&self.received)),
-            ("forwarded", l(&self.forwarded)),
-            ("rejected", self.rejected()),
-            ("rejected_oversize", l(&self.rejected_oversize)),
-            ("rejected_undersize", l(&self.rejected_undersize)),
-            ("rejected_malformed", l(&self.rejected_malformed)),
-            ("rejected_stray_source", l(&self.rejected_stray_source)),
-            ("rejected_no_session", l(&self.rejected_no_session)),
-            ("write_errors", l(&self.write_errors)),
-            ("answers", l(&self.answers)),
-            ("sent", l(&self.sent)),
-            ("answers_no_client", l(&self.answers_no_client)),
-            ("send_errors", l(&self.send_errors)),
-            ("sessions_opened", l(&self.sessions_opened)),
-            ("sessions_closed", l(&self.sessions_closed)),
-            ("sessions_expired", l(&self.sessions_expired)),
-        ];
-        for (k, v) in rows {
+        let mut row = |k: &str, v: u64| {
             let _ = writeln!(s, "{k}: {v}");
+        };
+        row("insecure", l(&self.insecure));
+        row("received", l(&self.received));
+        row("verified", l(&self.verified));
+        row("insecure_frames", l(&self.insecure_frames));
+        row("forwarded", l(&self.forwarded));
+        row("rejected", self.rejected());
+        for r in Refusal::ALL {
+            row(&format!("rejected_{}", r.name()), self.refused_by(r));
         }
+        row("retransmits_reacked", l(&self.retransmits_reacked));
+        row("refusals_answered", l(&self.refusals_answered));
+        row("write_errors", l(&self.write_errors));
+        row("answers", l(&self.answers));
+        row("sent", l(&self.sent));
+        row("answers_no_client", l(&self.answers_no_client));
+        row("answers_unsealed", l(&self.answers_unsealed));
+        row("send_errors", l(&self.send_errors));
+        row("sessions_opened", l(&self.sessions_opened));
+        row("sessions_closed", l(&self.sessions_closed));
+        row("sessions_expired", l(&self.sessions_expired));
         match client {
             Some(c) => {
                 let _ = writeln!(s, "client: {c}");
@@ -111,13 +117,17 @@ mod tests {
     fn render_then_parse() {
         let c = Counters::default();
         Counters::inc(&c.received);
-        c.reject(Reject::Oversize);
-        c.reject(Reject::StraySource);
+        c.refuse(Refusal::Oversize);
+        c.refuse(Refusal::StraySource);
+        c.refuse(Refusal::BadTag);
         let text = c.render(Some("127.0.0.1:9".parse().unwrap()));
         let kv = parse_kv(&text);
         let get = |k: &str| kv.iter().find(|(kk, _)| kk == k).map(|(_, v)| v.clone());
         assert_eq!(get("received").as_deref(), Some("1"));
-        assert_eq!(get("rejected").as_deref(), Some("2"));
+        assert_eq!(get("rejected").as_deref(), Some("3"));
+        assert_eq!(get("rejected_bad_tag").as_deref(), Some("1"));
+        assert_eq!(get("rejected_stray_source").as_deref(), Some("1"));
+        assert_eq!(get("rejected_replay").as_deref(), Some("0"));
         assert_eq!(get("client").as_deref(), Some("127.0.0.1:9"));
     }
 }

@@ -11,13 +11,22 @@
 //! - The main thread (see `main.rs`) sleeps until SIGTERM/SIGINT or until a
 //!   thread reports that a device went away, prints the counters on SIGUSR1.
 //!
-//! Frames are classified with hap-core's decoder (the one source of truth for
-//! the frame layout); nothing is re-encoded here: the bytes written to the
-//! kernel are exactly the bytes received.
+//! Authentication (protocol v2, `hap_auth`): the bridge is the trust
+//! boundary. Every client datagram is verified (HMAC tag, session, anti-
+//! replay window) before anything is written to the kernel's input device;
+//! what the kernel reads is the verified frame re-encoded as v1 (same header
+//! and payload bytes, CRC-32C). Answers read from the kernel are sealed for
+//! the client. Unauthenticated v1 (`--insecure`) forwards the received bytes
+//! as they are, after hap-core's decoder accepted them.
 
 pub mod counters;
 pub mod frames;
+pub mod privdrop;
+pub mod ratelimit;
 pub mod session;
+
+use hap_auth::{Action, Gate, Kind, Psk, Refusal};
+use ratelimit::RateLimit;
 
 use std::fs::{File, OpenOptions};
 use std::io::{ErrorKind, Read, Write};
@@ -29,7 +38,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use counters::Counters;
-use session::{Decision, Session};
+use session::{Decision, FrameKind, Session};
 
 /// Largest frame the protocol allows (spec §3.3.1.1: 90 bytes).
 pub const MAX_FRAME: usize = frames::MAX_FRAME;
@@ -44,15 +53,26 @@ pub struct Config {
     pub session_timeout: Duration,
     /// How often the stats file is rewritten.
     pub stats_interval: Duration,
+    /// The pre-shared key (protocol v2); `None`: unauthenticated v1
+    /// (`--insecure`).
+    pub key: Option<Psk>,
+    /// Refused datagrams per second and source address before that source is
+    /// dropped unexamined (0: no limit).
+    pub refusal_budget: u32,
 }
 
 /// State shared by the threads and the main thread.
 pub struct Shared {
     pub counters: Counters,
     pub client: Mutex<Option<SocketAddr>>,
+    /// The client whose CloseSession was forwarded last: the kernel's ack or
+    /// error for it (and nothing else) is still sent there.
+    pub closed_by: Mutex<Option<SocketAddr>>,
     pub stop: AtomicBool,
     /// Set by a thread that hit a fatal condition (device gone...).
     pub fatal: Mutex<Option<String>>,
+    /// The authenticating gate (v2); `None` in `--insecure` mode.
+    pub gate: Option<Mutex<Gate>>,
 }
 
 impl Shared {
@@ -168,9 +188,14 @@ impl Bridge {
         let shared = Arc::new(Shared {
             counters: Counters::default(),
             client: Mutex::new(None),
+            closed_by: Mutex::new(None),
             stop: AtomicBool::new(false),
             fatal: Mutex::new(None),
+            gate: cfg.key.map(|k| Mutex::new(Gate::new(k))),
         });
+        if shared.gate.is_none() {
+            shared.counters.insecure.store(1, Ordering::Relaxed);
+        }
         let on_fatal = Arc::new(on_fatal);
 
         let sh = shared.clone();
@@ -232,6 +257,9 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
     let mut last_stats = Instant::now();
     let mut dev: Option<File> = None;
     let mut stats_warned = false;
+    let mut limit = RateLimit::new(cfg.refusal_budget);
+    let mut refusal_log = [None; Refusal::COUNT];
+    let mut insecure_log: Option<Instant> = None;
 
     loop {
         if shared.stop.load(Ordering::SeqCst) {
@@ -256,7 +284,21 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
             }
         }
         if session.expire(now) {
+            if let Some(g) = &shared.gate {
+                lock(g).end_session();
+            }
             publish_session(shared, &session);
+        }
+        if shared.gate.is_none()
+            && insecure_log.is_none_or(|t| now.duration_since(t) >= Duration::from_secs(60))
+        {
+            insecure_log = Some(now);
+            eprintln!(
+                "proto_interface: INSECURE: unauthenticated protocol v1, any host that can \
+                 reach udp {} can steer the arm ({} v1 frames forwarded so far)",
+                cfg.bind,
+                shared.counters.insecure_frames.load(Ordering::Relaxed)
+            );
         }
         let (n, src) = match sock.recv_from(&mut buf) {
             Ok(x) => x,
@@ -280,25 +322,35 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
         };
         Counters::inc(&shared.counters.received);
         let data = &buf[..n];
-        let decision = match frames::classify(data) {
-            Err(r) => Decision::Drop(r),
-            Ok(kind) => session.admit(src, kind, Instant::now()),
+        let now = Instant::now();
+        if !limit.allow(src, session.client(), now) {
+            shared.counters.refuse(Refusal::RateLimited);
+            continue;
+        }
+        let step = match &shared.gate {
+            Some(gate) => authenticated(gate, &mut session, src, data, sock, shared, now),
+            None => insecure(&mut session, src, data, shared, now),
         };
-        match decision {
-            Decision::Drop(r) => shared.counters.reject(r),
-            Decision::Forward => {
-                publish_session(shared, &session);
-                let Some(f) = dev.as_mut() else { continue };
-                match f.write(data) {
-                    Ok(w) if w == n => Counters::inc(&shared.counters.forwarded),
-                    Ok(_) => Counters::inc(&shared.counters.write_errors),
-                    Err(e) => {
-                        Counters::inc(&shared.counters.write_errors);
-                        if is_device_gone(&e) {
-                            shared.set_fatal(format!("{}: {e}", cfg.rtf_in.display()));
-                            break;
-                        }
-                    }
+        let frame = match step {
+            Step::Refused(r) => {
+                shared.counters.refuse(r);
+                limit.charge(src, session.client(), now);
+                log_refusal(&mut refusal_log, r, src, now);
+                continue;
+            }
+            Step::Done => continue,
+            Step::Forward(w) => w,
+        };
+        publish_session(shared, &session);
+        let Some(f) = dev.as_mut() else { continue };
+        match f.write(frame.bytes()) {
+            Ok(w) if w == frame.len => Counters::inc(&shared.counters.forwarded),
+            Ok(_) => Counters::inc(&shared.counters.write_errors),
+            Err(e) => {
+                Counters::inc(&shared.counters.write_errors);
+                if is_device_gone(&e) {
+                    shared.set_fatal(format!("{}: {e}", cfg.rtf_in.display()));
+                    break;
                 }
             }
         }
@@ -308,9 +360,141 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
     }
 }
 
+/// What the SERVER thread does with one datagram.
+enum Step {
+    /// Write this v1 frame to the kernel.
+    Forward(hap_auth::Wire),
+    /// Refused, count it.
+    Refused(Refusal),
+    /// Handled (an authenticated reply was sent), nothing to write.
+    Done,
+}
+
+fn lock(g: &Mutex<Gate>) -> std::sync::MutexGuard<'_, Gate> {
+    match g.lock() {
+        Ok(x) => x,
+        Err(p) => p.into_inner(),
+    }
+}
+
+/// Protocol v2: verify, apply the address policy, commit.
+fn authenticated(
+    gate: &Mutex<Gate>,
+    session: &mut Session,
+    src: SocketAddr,
+    data: &[u8],
+    sock: &UdpSocket,
+    shared: &Shared,
+    now: Instant,
+) -> Step {
+    let mut g = lock(gate);
+    let i = match g.inspect(data) {
+        Ok(i) => i,
+        Err(r) => return Step::Refused(r),
+    };
+    let kind = match i.kind {
+        Kind::Open => FrameKind::OpenSession,
+        Kind::Close => FrameKind::CloseSession,
+        Kind::Other => FrameKind::Other,
+    };
+    match session.admit(src, kind, now) {
+        Decision::Drop(r) => {
+            // A key holder asking for the arm while another client has it is
+            // told so (authenticated, bound to its nonce); nothing else is.
+            if i.kind == Kind::Open && r == Refusal::StraySource {
+                if let Some(w) = g.refusal(&i, 0, 0) {
+                    if sock.send_to(w.bytes(), src).is_ok() {
+                        Counters::inc(&shared.counters.refusals_answered);
+                    }
+                }
+            }
+            Step::Refused(r)
+        }
+        Decision::Forward => {
+            let ns = match hap_auth::fresh_nonce() {
+                Ok(n) => n,
+                Err(e) => {
+                    shared.set_fatal(format!("/dev/urandom: {e}"));
+                    return Step::Done;
+                }
+            };
+            Counters::inc(&shared.counters.verified);
+            match g.commit(&i, ns) {
+                Action::Forward(w) => {
+                    if i.kind == Kind::Close {
+                        g.end_session();
+                    }
+                    Step::Forward(w)
+                }
+                Action::Reply(w, r) => {
+                    if r == Refusal::Replay {
+                        Counters::inc(&shared.counters.retransmits_reacked);
+                    } else {
+                        shared.counters.refuse(r);
+                        Counters::inc(&shared.counters.refusals_answered);
+                    }
+                    if sock.send_to(w.bytes(), src).is_err() {
+                        Counters::inc(&shared.counters.send_errors);
+                    }
+                    Step::Done
+                }
+            }
+        }
+    }
+}
+
+/// Unauthenticated v1 (`--insecure`): the received bytes, once hap-core's
+/// decoder accepted them and the address policy admits them.
+fn insecure(
+    session: &mut Session,
+    src: SocketAddr,
+    data: &[u8],
+    shared: &Shared,
+    now: Instant,
+) -> Step {
+    let decision = match frames::classify(data) {
+        Err(r) => Decision::Drop(r),
+        Ok(kind) => session.admit(src, kind, now),
+    };
+    match decision {
+        Decision::Drop(r) => Step::Refused(r),
+        Decision::Forward => {
+            Counters::inc(&shared.counters.insecure_frames);
+            let mut w = hap_auth::Wire {
+                buf: [0u8; MAX_FRAME],
+                len: data.len(),
+            };
+            w.buf[..data.len()].copy_from_slice(data);
+            Step::Forward(w)
+        }
+    }
+}
+
+/// One log line per refusal reason per 10 s, with the source.
+fn log_refusal(
+    last: &mut [Option<Instant>; Refusal::COUNT],
+    r: Refusal,
+    src: SocketAddr,
+    now: Instant,
+) {
+    let Some(slot) = last.get_mut(r.index()) else {
+        return;
+    };
+    if slot.is_none_or(|t| now.duration_since(t) >= Duration::from_secs(10)) {
+        *slot = Some(now);
+        eprintln!(
+            "proto_interface: refused a datagram from {src}: {} (counted; one line per reason per 10 s)",
+            r.name()
+        );
+    }
+}
+
 fn publish_session(shared: &Shared, session: &Session) {
     if let Ok(mut c) = shared.client.lock() {
         *c = session.client();
+    }
+    if let Ok(mut c) = shared.closed_by.lock() {
+        *c = session.closed_by();
     }
     let c = &shared.counters;
     c.sessions_opened.store(session.opened, Ordering::Relaxed);
@@ -351,12 +535,33 @@ fn client_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
             }
             Ok(n) => {
                 Counters::inc(&shared.counters.answers);
-                match shared.client() {
-                    None => Counters::inc(&shared.counters.answers_no_client),
-                    Some(to) => match sock.send_to(&buf[..n], to) {
-                        Ok(_) => Counters::inc(&shared.counters.sent),
-                        Err(_) => Counters::inc(&shared.counters.send_errors),
+                // Acks and errors of a closing client still reach it.
+                let is_reply = buf.get(3).is_some_and(|t| {
+                    *t == hap_core::protocol::FrameType::Ack as u8
+                        || *t == hap_core::protocol::FrameType::Error as u8
+                });
+                let closing = || shared.closed_by.lock().ok().and_then(|c| *c);
+                let Some(to) = shared.client().or_else(|| closing().filter(|_| is_reply)) else {
+                    Counters::inc(&shared.counters.answers_no_client);
+                    continue;
+                };
+                let sealed;
+                let out: &[u8] = match &shared.gate {
+                    None => &buf[..n],
+                    Some(g) => match lock(g).seal_from_kernel(&buf[..n]) {
+                        Some(w) => {
+                            sealed = w;
+                            sealed.bytes()
+                        }
+                        None => {
+                            Counters::inc(&shared.counters.answers_unsealed);
+                            continue;
+                        }
                     },
+                };
+                match sock.send_to(out, to) {
+                    Ok(_) => Counters::inc(&shared.counters.sent),
+                    Err(_) => Counters::inc(&shared.counters.send_errors),
                 }
             }
             Err(e) if e.kind() == ErrorKind::Interrupted => continue,

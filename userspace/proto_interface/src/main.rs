@@ -44,6 +44,24 @@ struct Args {
     /// below SERVO's 80). Default: SCHED_OTHER. Fails if not permitted.
     #[arg(long, value_parser = clap::value_parser!(i32).range(1..=99))]
     rt_priority: Option<i32>,
+    /// Pre-shared key file (64 hex digits, mode 0600; `hapctl keygen`):
+    /// only clients holding it can open a session (protocol v2).
+    #[arg(long, value_name = "FILE", required_unless_present = "insecure")]
+    key: Option<PathBuf>,
+    /// Accept unauthenticated protocol v1 from anyone who can reach the port.
+    /// Logged loudly and shown as `insecure: 1` in the counters.
+    #[arg(long, conflicts_with = "key")]
+    insecure: bool,
+    /// After reading the key and setting the priority, run as this user
+    /// (`USER[:GROUP]`, names or numbers), keeping only CAP_SYS_NICE when
+    /// --rt-priority is given. The group must own the two FIFO devices.
+    #[arg(long, value_name = "USER[:GROUP]")]
+    user: Option<String>,
+    /// Refused datagrams per second a source address (IP and port) may send
+    /// before its datagrams are dropped unexamined (0: no limit). The
+    /// session's client address is never limited.
+    #[arg(long, default_value_t = 1000)]
+    refusal_budget: u32,
 }
 
 fn main() -> ExitCode {
@@ -59,13 +77,54 @@ fn main() -> ExitCode {
         },
         session_timeout: Duration::from_millis(args.session_timeout_ms),
         stats_interval: Duration::from_secs(1),
+        key: None,
+        refusal_budget: args.refusal_budget,
     };
+    let mut cfg = cfg;
+    match &args.key {
+        Some(path) => match hap_auth::Psk::load(path) {
+            Ok(k) => cfg.key = Some(k),
+            Err(e) => {
+                eprintln!("proto_interface: key {}: {e}", path.display());
+                return ExitCode::FAILURE;
+            }
+        },
+        None => eprintln!(
+            "proto_interface: WARNING: --insecure: unauthenticated protocol v1, any host \
+             that can reach the port can steer the arm"
+        ),
+    }
+    if cfg.key.is_some() {
+        if let Err(e) = hap_auth::fresh_nonce() {
+            eprintln!("proto_interface: no random numbers (/dev/urandom): {e}");
+            return ExitCode::FAILURE;
+        }
+    }
 
     if let Some(p) = args.rt_priority {
         // Before any thread is started: they inherit the policy.
         if let Err(e) = proto_interface::set_fifo_priority(p) {
             eprintln!("proto_interface: cannot run at SCHED_FIFO {p}: {e}");
             return ExitCode::FAILURE;
+        }
+    }
+    if let Some(spec) = &args.user {
+        let passwd = std::fs::read_to_string("/etc/passwd").unwrap_or_default();
+        let group = std::fs::read_to_string("/etc/group").unwrap_or_default();
+        let r = proto_interface::privdrop::resolve(spec, &passwd, &group).and_then(|ids| {
+            proto_interface::privdrop::drop_to(ids, args.rt_priority.is_some()).map(|()| ids)
+        });
+        match r {
+            Ok(ids) => eprintln!(
+                "proto_interface: running as uid {} gid {}, capabilities {:#x}",
+                ids.uid,
+                ids.gid,
+                proto_interface::privdrop::effective_caps().unwrap_or(0)
+            ),
+            Err(e) => {
+                eprintln!("proto_interface: cannot run as {spec}: {e}");
+                return ExitCode::FAILURE;
+            }
         }
     }
     let mut signals = match Signals::new([SIGTERM, SIGINT, SIGUSR1]) {
@@ -88,10 +147,15 @@ fn main() -> ExitCode {
         println!("listening on {}", bridge.local_addr);
     }
     eprintln!(
-        "proto_interface: listening on udp {} (udp -> {}, {} -> client)",
+        "proto_interface: listening on udp {} (udp -> {}, {} -> client), {}",
         bridge.local_addr,
         cfg.rtf_in.display(),
-        cfg.rtf_out.display()
+        cfg.rtf_out.display(),
+        if cfg.key.is_some() {
+            "authenticated (protocol v2)"
+        } else {
+            "INSECURE (unauthenticated protocol v1)"
+        }
     );
 
     let mut why = String::from("device gone");

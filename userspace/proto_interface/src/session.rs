@@ -20,20 +20,10 @@ pub enum FrameKind {
     Other,
 }
 
-/// Why a datagram was not forwarded.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Reject {
-    /// Longer than the 90-byte maximum frame.
-    Oversize,
-    /// Shorter than the smallest valid frame.
-    Undersize,
-    /// Did not decode (bad magic, CRC, XDR...).
-    Malformed,
-    /// From an address other than the session's client.
-    StraySource,
-    /// Not an `OpenSession` and no session is open.
-    NoSession,
-}
+/// Why a datagram was not forwarded: the bridge's reasons are those of
+/// the authenticating gate (`Oversize`, `Undersize`, `Malformed`,
+/// `StraySource`, `NoSession` are the ones this module and `frames` use).
+pub use hap_auth::Refusal as Reject;
 
 /// The decision for one datagram.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -49,6 +39,9 @@ pub enum Decision {
 #[derive(Debug)]
 pub struct Session {
     client: Option<SocketAddr>,
+    /// The client that closed the session last (its close is still to be
+    /// acknowledged by the kernel).
+    closed_by: Option<SocketAddr>,
     last_seen: Instant,
     timeout: Duration,
     /// Sessions opened, closed by the client, expired by the timeout.
@@ -61,6 +54,7 @@ impl Session {
     pub fn new(timeout: Duration) -> Session {
         Session {
             client: None,
+            closed_by: None,
             last_seen: Instant::now(),
             timeout,
             opened: 0,
@@ -72,6 +66,16 @@ impl Session {
     /// The pinned client, if a session is open.
     pub fn client(&self) -> Option<SocketAddr> {
         self.client
+    }
+
+    /// The client that sent the last `CloseSession` (the kernel's ack of it
+    /// goes there), until a new session opens.
+    pub fn closed_by(&self) -> Option<SocketAddr> {
+        if self.client.is_none() {
+            self.closed_by
+        } else {
+            None
+        }
     }
 
     /// Expire the session if the client has been silent too long.
@@ -92,8 +96,12 @@ impl Session {
             Some(client) if client != src => Decision::Drop(Reject::StraySource),
             Some(_) => {
                 self.last_seen = now;
+                if kind == FrameKind::OpenSession {
+                    // The same client re-opening: the kernel opens a new session.
+                    self.opened += 1;
+                }
                 if kind == FrameKind::CloseSession {
-                    self.client = None;
+                    self.closed_by = self.client.take();
                     self.closed += 1;
                 }
                 Decision::Forward
@@ -139,8 +147,10 @@ mod tests {
             s.admit(a(2), FrameKind::Other, t),
             Decision::Drop(Reject::StraySource)
         );
-        // The same client re-opening is forwarded (the kernel resets its session).
+        // The same client re-opening is forwarded (the kernel opens a new
+        // session) and counted, as the kernel counts it.
         assert_eq!(s.admit(a(1), FrameKind::OpenSession, t), Decision::Forward);
+        assert_eq!(s.opened, 2);
     }
 
     #[test]

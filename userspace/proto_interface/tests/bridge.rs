@@ -192,8 +192,11 @@ impl Drop for Rig {
 
 #[test]
 fn forwards_drops_and_routes() {
-    let mut rig = Rig::start("fwd", &[]);
+    let mut rig = Rig::start("fwd", &["--insecure", "--refusal-budget", "0"]);
     let a = rig.client();
+    rig.signal(libc::SIGUSR1);
+    std::thread::sleep(Duration::from_millis(200));
+    assert_eq!(rig.stat("insecure"), 1, "{}", rig.stats());
     let b = rig.client();
 
     // Before any session: only OpenSession passes.
@@ -292,7 +295,7 @@ fn forwards_drops_and_routes() {
 
 #[test]
 fn session_expires_and_sigterm_exits() {
-    let mut rig = Rig::start("exp", &["--session-timeout-ms", "300"]);
+    let mut rig = Rig::start("exp", &["--insecure", "--session-timeout-ms", "300"]);
     let a = rig.client();
     let b = rig.client();
     a.send(&enc(1, &Frame::OpenSession { client_nonce: 1 }))
@@ -334,6 +337,9 @@ fn bad_command_line_is_refused() {
         &["--rt-priority", "100"],
         &["--rt-priority", "high"],
         &["--bogus"],
+        &[],
+        &["--insecure", "--key", "/nonexistent"],
+        &["--insecure", "--refusal-budget", "-1"],
     ] {
         let o = Command::new(env!("CARGO_BIN_EXE_proto_interface"))
             .args(args)
@@ -361,6 +367,7 @@ fn sigterm_while_waiting_for_the_module() {
             "--port",
             "0",
             "--no-stats-file",
+            "--insecure",
             "--rtf-in",
         ])
         .arg(&rin)

@@ -26,6 +26,14 @@
 //! one) are dropped, gaps are counted as losses, and the round-trip time is
 //! measured from the `vpr_seq` the controller echoes. [`VirtContext::link_stats`]
 //! reports rate, loss and RTT.
+//!
+//! Authentication (protocol v2, `hap_auth`): with a pre-shared key the
+//! session opens with a challenge–response handshake and every frame
+//! carries an HMAC tag (Documentation/protocol.md §7). The key comes from
+//! [`Options::key`], else from the address (`"host#port?key=/path/to/key"`,
+//! which also works through the C `virtOpen`), else from the file named by
+//! the environment variable [`KEY_ENV`]. Without a key the library speaks
+//! unauthenticated v1, which a bridge refuses unless it runs `--insecure`.
 
 pub mod conv;
 pub mod fake_peer;
@@ -50,6 +58,12 @@ use hap_core::vp::status;
 
 /// Default UDP port of proto_interface.
 pub const DEFAULT_PORT: u16 = 5000;
+/// Environment variable naming the key file when neither the options nor
+/// the address give one.
+pub const KEY_ENV: &str = "HAP_KEY_FILE";
+
+pub use hap_auth::Psk;
+use hap_auth::{ClientAuth, Reply as AuthReply};
 
 /// Every error the API can return. `code()` is the integer the C ABI returns
 /// through `virtGetErrorCode`.
@@ -144,13 +158,16 @@ impl From<std::io::Error> for VirtError {
 
 pub type Result<T> = std::result::Result<T, VirtError>;
 
-/// Timeouts and retries.
+/// Timeouts, retries and the key.
 #[derive(Clone, Copy, Debug)]
 pub struct Options {
     /// How long to wait for the SessionAck / Ack of one attempt.
     pub reply_timeout: Duration,
     /// Attempts for each acknowledged request (open, configuration, power).
     pub attempts: u32,
+    /// Pre-shared key (protocol v2). `None`: the address's `?key=` or
+    /// [`KEY_ENV`], else unauthenticated v1.
+    pub key: Option<Psk>,
 }
 
 impl Default for Options {
@@ -158,6 +175,7 @@ impl Default for Options {
         Options {
             reply_timeout: Duration::from_millis(250),
             attempts: 4,
+            key: None,
         }
     }
 }
@@ -220,6 +238,8 @@ pub struct RttSample {
 pub const RTT_LOG_MAX: usize = 1 << 20;
 
 struct State {
+    /// The bridge refused the authenticated handshake (reason).
+    handshake_refused: Option<u32>,
     session: u16,
     session_nonce: u32,
     session_ack: Option<(u16, u32)>,
@@ -242,6 +262,8 @@ struct State {
 }
 
 struct Inner {
+    /// Protocol v2 state; `None`: unauthenticated v1.
+    auth: Option<Mutex<ClientAuth>>,
     sock: UdpSocket,
     state: Mutex<State>,
     cond: Condvar,
@@ -277,7 +299,29 @@ impl Inner {
             timestamp_us: self.now_us(),
         };
         let mut buf = [0u8; MAX_FRAME_LEN];
-        let n = encode(&h, frame, &mut buf);
+        let n = match &self.auth {
+            None => encode(&h, frame, &mut buf),
+            Some(a) => {
+                let mut a = match a.lock() {
+                    Ok(g) => g,
+                    Err(p) => p.into_inner(),
+                };
+                let w = if let Frame::OpenSession { .. } = frame {
+                    // A fresh nonce for every attempt: the bridge refuses a
+                    // nonce it has already seen.
+                    Some(a.hello(&h, hap_auth::fresh_nonce()?))
+                } else {
+                    a.seal(&h, frame)
+                };
+                match w {
+                    Some(w) => {
+                        buf[..w.len].copy_from_slice(w.bytes());
+                        w.len
+                    }
+                    None => 0,
+                }
+            }
+        };
         if n == 0 {
             return Err(VirtError::InvalidArgument("frame does not encode".into()));
         }
@@ -304,10 +348,36 @@ pub struct VirtContext {
     closed: bool,
 }
 
+/// Split `"address?key=/path"` into the address and the key file (the only
+/// option); an address without `?` has none.
+pub fn split_options(s: &str) -> Result<(&str, Option<&str>)> {
+    let Some((addr, opts)) = s.split_once('?') else {
+        return Ok((s, None));
+    };
+    let mut key = None;
+    for kv in opts.split('&').filter(|kv| !kv.is_empty()) {
+        match kv.split_once('=') {
+            Some(("key", path)) if !path.is_empty() => key = Some(path),
+            _ => {
+                return Err(VirtError::InvalidAddress(format!(
+                    "{s}: unknown option '{kv}' (expected key=/path/to/key)"
+                )))
+            }
+        }
+    }
+    Ok((addr, key))
+}
+
+fn load_key(path: &str) -> Result<Psk> {
+    Psk::load(std::path::Path::new(path))
+        .map_err(|e| VirtError::InvalidArgument(format!("key {path}: {e}")))
+}
+
 /// Parse `"host#port"` (VirtuoseAPI style) or `"host"` (port 5000); also
-/// accepts `"host:port"`.
+/// accepts `"host:port"`. A `?key=...` suffix is ignored here
+/// ([`split_options`]).
 pub fn parse_address(s: &str) -> Result<SocketAddr> {
-    let s = s.trim();
+    let s = split_options(s.trim())?.0.trim();
     if s.is_empty() {
         return Err(VirtError::InvalidAddress("empty address".into()));
     }
@@ -361,6 +431,14 @@ impl VirtContext {
     /// Open with explicit timeouts.
     pub fn open_with(addr: &str, opts: Options) -> Result<VirtContext> {
         let peer = parse_address(addr)?;
+        let key = match (opts.key, split_options(addr.trim())?.1) {
+            (Some(k), _) => Some(k),
+            (None, Some(path)) => Some(load_key(path)?),
+            (None, None) => match std::env::var(KEY_ENV) {
+                Ok(path) if !path.is_empty() => Some(load_key(&path)?),
+                _ => None,
+            },
+        };
         let bind: SocketAddr = if peer.is_ipv4() {
             "0.0.0.0:0"
                 .parse()
@@ -378,7 +456,9 @@ impl VirtContext {
             ^ (sock.local_addr().map(|a| a.port()).unwrap_or(0) as u32);
         let inner = Arc::new(Inner {
             sock,
+            auth: key.map(|k| Mutex::new(ClientAuth::new(k))),
             state: Mutex::new(State {
+                handshake_refused: None,
                 session: 0,
                 session_nonce: nonce,
                 session_ack: None,
@@ -428,6 +508,15 @@ impl VirtContext {
             let deadline = Instant::now() + opts.reply_timeout;
             let mut st = vc.inner.lock();
             loop {
+                if let Some(reason) = st.handshake_refused {
+                    drop(st);
+                    vc.shutdown();
+                    return Err(VirtError::Refused {
+                        request: "open_session",
+                        reason,
+                        name: reason_name(reason),
+                    });
+                }
                 if let Some((session, period)) = st.session_ack {
                     st.session = session;
                     st.stats.period_us = period;
@@ -452,6 +541,11 @@ impl VirtContext {
             return Err(VirtError::Timeout("open_session"));
         }
         Ok(vc)
+    }
+
+    /// True when the session is authenticated (protocol v2).
+    pub fn authenticated(&self) -> bool {
+        self.inner.auth.is_some()
     }
 
     /// The controller's address.
@@ -782,7 +876,7 @@ impl Drop for VirtContext {
 fn reason_name(reason: u32) -> String {
     match reason {
         ERROR_NO_SESSION => "no session".into(),
-        ERROR_REFUSED => "refused in the current state".into(),
+        ERROR_REFUSED => "refused: another client holds the session".into(),
         r => match DecodeError::from_index(r as usize) {
             Some(e) => e.name().into(),
             None => format!("reason {r}"),
@@ -797,12 +891,43 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
             Ok(n) => n,
             Err(_) => continue, // timeout, ICMP unreachable...: keep going
         };
-        let (h, frame) = match decode(&buf[..n]) {
-            Ok(x) => x,
-            Err(_) => {
-                inner.lock().stats.decode_errors += 1;
-                continue;
+        let decoded = match &inner.auth {
+            None => decode(&buf[..n]).ok(),
+            Some(a) => {
+                let r = match a.lock() {
+                    Ok(mut g) => g.open(&buf[..n]),
+                    Err(p) => p.into_inner().open(&buf[..n]),
+                };
+                match r {
+                    Ok((h, AuthReply::Frame(f))) => Some((h, f)),
+                    Ok((h, AuthReply::SessionAck { period_us })) => {
+                        // Verified against this handshake's nonce: the v1
+                        // path below matches on the v1 nonce.
+                        let client_nonce = inner.lock().session_nonce;
+                        Some((
+                            h,
+                            Frame::SessionAck {
+                                client_nonce,
+                                period_us,
+                            },
+                        ))
+                    }
+                    Ok((_, AuthReply::HandshakeRefused { reason })) => {
+                        inner.lock().handshake_refused = Some(reason);
+                        inner.cond.notify_all();
+                        continue;
+                    }
+                    // A controller frame before our session_ack (the servo
+                    // may answer the new session first): no keys yet,
+                    // ignored as v1 ignores answers before the ack.
+                    Err(hap_auth::Refusal::NoSession) => continue,
+                    Err(_) => None,
+                }
             }
+        };
+        let Some((h, frame)) = decoded else {
+            inner.lock().stats.decode_errors += 1;
+            continue;
         };
         let mut st = inner.lock();
         match frame {
@@ -956,6 +1081,14 @@ mod tests {
         assert!(parse_address("127.0.0.1#70000").is_err());
         assert!(parse_address("#5000").is_err());
         assert!(parse_address("127.0.0.1#0").is_err());
+        assert_eq!(parse_address("127.0.0.1#5001?key=/k").unwrap().port(), 5001);
+        assert_eq!(
+            split_options("h#1?key=/etc/hap.key").unwrap(),
+            ("h#1", Some("/etc/hap.key"))
+        );
+        assert_eq!(split_options("h#1").unwrap(), ("h#1", None));
+        assert!(split_options("h#1?kex=/x").is_err());
+        assert!(split_options("h#1?key=").is_err());
     }
 
     #[test]

@@ -9,6 +9,7 @@ fn quick() -> Options {
     Options {
         reply_timeout: Duration::from_millis(100),
         attempts: 2,
+        ..Options::default()
     }
 }
 

@@ -42,6 +42,11 @@ struct Args {
     /// Physics / streaming rate, Hz.
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(10..=5000))]
     rate: u32,
+    /// Pre-shared key file (protocol v2; `hapctl keygen`). Also accepted:
+    /// `--server "host#port?key=FILE"` or the HAP_KEY_FILE environment
+    /// variable. Without a key the client speaks unauthenticated v1.
+    #[arg(long, value_name = "FILE")]
+    key: Option<PathBuf>,
     /// Reply timeout of acknowledged requests, ms.
     #[arg(long, default_value_t = 250)]
     timeout_ms: u64,
@@ -308,13 +313,28 @@ fn run(args: Args) -> Result<(), String> {
         None => 1.0 / args.rate as f64,
     };
     let mut world = World::default();
+    let key = match &args.key {
+        Some(p) => {
+            Some(virtuose_api::Psk::load(p).map_err(|e| format!("key {}: {e}", p.display()))?)
+        }
+        None => None,
+    };
     let opts = Options {
         reply_timeout: Duration::from_millis(args.timeout_ms),
         attempts: 4,
+        key,
     };
     println!("connecting to {server}");
     let mut vc = VirtContext::open_with(&server, opts).map_err(|e| format!("{server}: {e}"))?;
     let ls = vc.link_stats();
+    println!(
+        "{}",
+        if vc.authenticated() {
+            "authenticated session (protocol v2)"
+        } else {
+            "UNAUTHENTICATED session (protocol v1)"
+        }
+    );
     println!(
         "session {} open, controller period {} us",
         vc.session_id(),

@@ -1,0 +1,121 @@
+#!/usr/bin/env bash
+# Authenticated link, host <-> guest (plain TCG, icount sleep=on as
+# tests/e2e/link.sh). The bridge in the guest has the key; the arm is powered
+# and the user grips the handle without effort.
+#   1. keyless attackers: virtuose_demo without a key, a blind v1 client
+#      (open, power, impedance, VPr 0.2 m away, session ids 1..8) and 10^4
+#      v2 frames with random tags: all refused, nothing verified, the
+#      handle does not move (position log);
+#   2. the key holder (virtuose_demo --key) couples for DURATION s while
+#      10^5 forged v2 frames are sent from its own source address (raw
+#      socket, spoofed) and 10^4 from another port: none reaches rtf_in
+#      (module frames = bridge forwarded = bridge verified), no deadline
+#      miss, the client runs through.
+# Prints every figure, then "N passed, N failed".
+#   tests/e2e/auth.sh [--duration S] [--forged N] [--results DIR]
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+. "$ROOT/scripts/lib.sh"
+duration=20; forged=100000; results="$ROOT/build/e2e-auth"; period_us=1000
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --duration) duration=$2; shift ;;
+    --forged) forged=$2; shift ;;
+    --results) results=$2; shift ;;
+    -h|--help) hap_usage; exit 0 ;;
+    *) die "unknown argument $1" ;;
+  esac
+  shift
+done
+[ "$(id -u)" = 0 ] || die "needs root (the spoofed datagrams are sent from a raw socket)"
+mkdir -p "$results"; rm -f "$results"/*
+pass=0; fail=0
+ok() { pass=$((pass + 1)); echo "ok - $*"; }
+nok() { fail=$((fail + 1)); echo "not ok - $*"; }
+check_num() { # desc value op limit
+  if awk -v v="$2" -v l="$4" "BEGIN { exit !(v $3 l) }"; then ok "$1 ($2 $3 $4)"; else nok "$1 (got '$2', want $3 $4)"; fi
+}
+demo="$ROOT/userspace/target/release/virtuose_demo"
+(cd "$ROOT/userspace" && cargo build --release --quiet -p virtuose_demo) || die "cannot build virtuose_demo"
+key=$(hap_keyfile "$ROOT/build/hap-test.key")
+port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background --icount-sleep --udp "$port:5000" --key "$key" \
+  --log "$results/guest.log" "$ROOT/tests/guest/auth.sh" "$period_us" $((duration * 6 + 240)))
+trap 'kill $qpid 2>/dev/null' EXIT
+for _ in $(seq 900); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
+grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; die "the guest did not get ready"; }
+echo "# guest ready (tcg-icount-sleep, servo period ${period_us} us); UDP 127.0.0.1:$port -> guest:5000"
+
+# 1. Keyless attackers.
+HAP_KEY_FILE= timeout 20 "$demo" --server "127.0.0.1#$port" --headless --duration 2 --timeout-ms 300 > "$results/keyless_client.txt" 2>&1
+echo $? > "$results/keyless_client.rc"
+python3 "$ROOT/tests/e2e/forge.py" v1 127.0.0.1 "$port" 3 > "$results/blind_v1.txt" 2>&1
+python3 "$ROOT/tests/e2e/forge.py" forge 127.0.0.1 "$port" 10000 --rate 20000 > "$results/forged_keyless.txt" 2>&1
+for _ in $(seq 1200); do grep -q HAP-ATTACK-DONE "$qlog" && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
+attack=$(grep -a HAP-ATTACK-DONE "$qlog" | tr -d '\r' | head -1)
+echo "# attack phase: $attack"
+
+# 2. The key holder, under forged traffic from its own address.
+"$demo" --server "127.0.0.1#$port" --key "$key" --headless --duration "$duration" --results "$results" > "$results/client.txt" 2>&1 &
+cpid=$!
+cport=""
+for _ in $(seq 100); do
+  cport=$(ss -Hunp 2>/dev/null | awk -v p="127.0.0.1:$port" '$5 == p && /virtuose_demo/ { n = split($4, a, ":"); print a[n]; exit }')
+  [ -n "$cport" ] && break; sleep 0.1
+done
+[ -n "$cport" ] || nok "could not find the client's source port"
+sleep 2
+python3 "$ROOT/tests/e2e/forge.py" forge 127.0.0.1 "$port" "$forged" --spoof "${cport:-1}" --rate 15000 > "$results/forged_spoofed.txt" 2>&1
+python3 "$ROOT/tests/e2e/forge.py" forge 127.0.0.1 "$port" 10000 --rate 15000 > "$results/forged_other.txt" 2>&1
+wait "$cpid"; crc=$?
+for _ in $(seq 1800); do kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
+kill "$qpid" 2>/dev/null
+trap - EXIT
+
+between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | tr -d "\r" | grep -v -- "$1-"; }
+between HAP-ATTACK-STATS > "$results/attack_stats.txt"
+between HAP-STATS > "$results/hap_stats.txt"
+between HAP-PROTO > "$results/proto_interface.txt"
+gv() { sed -n "s/^$2: *\([^ ]*\).*/\1/p" "$results/$1" | head -1; }
+sv() { sed -n "s/^$1: //p" "$results/summary.txt" 2>/dev/null | head -1; }
+for f in blind_v1 forged_keyless forged_spoofed forged_other; do sed "s/^/# $f: /" "$results/$f.txt"; done
+sed 's/^/# client: /' "$results/client.txt" | grep -E 'authenticated|session|summary|loss|rtt' | head -8
+
+echo "## 1. keyless attackers"
+[ "$(cat "$results/keyless_client.rc")" != 0 ] && ok "a client without the key is refused ($(tail -1 "$results/keyless_client.txt"))" || nok "the keyless client got a session"
+check_num "the blind v1 client got no reply" "$(sed -n 's/.*received \([0-9]*\) replies.*/\1/p' "$results/blind_v1.txt")" '==' 0
+check_num "bridge: v1 datagrams refused as unauthenticated" "$(gv attack_stats.txt rejected_unauthenticated_v1)" '>=' 100
+check_num "bridge: nothing verified during the attack" "$(gv attack_stats.txt verified)" '==' 0
+check_num "bridge: nothing forwarded to rtf_in during the attack" "$(gv attack_stats.txt forwarded)" '==' 0
+check_num "module: no session opened during the attack" "$(gv attack_stats.txt sessions_opened)" '==' 0
+check_num "module: no frame reached PROTO_IN during the attack" "$(gv attack_stats.txt frames_in)" '==' 0
+check_num "position log recorded during the attack (records)" "$(echo "$attack" | sed -n 's/.*records=\([0-9]*\).*/\1/p')" '>=' 500
+check_num "the powered arm's handle did not move (max displacement, m)" "$(echo "$attack" | sed -n 's/.*max_displacement_m=\([0-9.]*\).*/\1/p')" '<=' 0.000001
+
+echo "## 2. the key holder under forged traffic"
+[ "$crc" = 0 ] && ok "the key holder's client ran ${duration} s" || nok "the client failed (exit $crc): $(tail -3 "$results/client.txt")"
+grep -q "authenticated session (protocol v2)" "$results/client.txt" && ok "the session is authenticated" || nok "the session is not authenticated"
+check_num "answers received" "$(sv answers)" '>=' 1000
+check_num "the coupled sphere followed the handle (coupling error mean, m)" "$(sv coupling_error_mean_m)" '<=' 0.005
+fwd=$(gv proto_interface.txt forwarded); ver=$(gv proto_interface.txt verified); fin=$(gv hap_stats.txt frames_in)
+check_num "every frame written to rtf_in was verified (forwarded <= verified)" "$fwd" '<=' "$ver"
+check_num "module: frames in == bridge forwarded (nothing else reached it)" "$fin" '==' "$fwd"
+check_num "module: no frame rejected (nothing forged reached it)" "$(gv hap_stats.txt frames_rejected)" '==' 0
+check_num "module: exactly one session" "$(gv hap_stats.txt sessions_opened)" '==' 1
+forged_in=$(( $(gv proto_interface.txt rejected_bad_tag) + $(gv proto_interface.txt rejected_rate_limited) + $(gv proto_interface.txt rejected_wrong_session) ))
+check_num "bridge: forged frames refused (bad tag + rate limited + wrong session; of $((forged + 20000)) sent, less what the network lost)" "$forged_in" '>=' $(( (forged + 20000) * 9 / 10 ))
+check_num "bridge: the flood from another port was rate limited" "$(gv proto_interface.txt rejected_rate_limited)" '>=' 1
+check_num "module: deadline misses" "$(gv hap_stats.txt misses)" '==' 0
+check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
+echo "# bridge: $(grep -E '^(received|verified|forwarded|rejected|rejected_bad_tag|rejected_rate_limited|rejected_unauthenticated_v1|retransmits_reacked):' "$results/proto_interface.txt" | tr '\n' ' ')"
+
+echo "## 3. least privilege"
+check_num "bridge runs as the hapticctrl user (uid)" "$(sed -n 's/^HAP-BRIDGE-ID uid=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)" '==' 990
+check_num "bridge keeps no capability (CapEff)" "$((16#$(sed -n 's/^HAP-BRIDGE-ID.*capeff=\([0-9a-f]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)))" '==' 0
+devs=$(sed -n 's/^HAP-DEVICES //p' "$qlog" | tr -d '\r' | head -1)
+[ "$devs" = "crw-rw----:0:990 crw-rw----:0:990 " ] && ok "the FIFO devices: root:hapticctrl 0660 ($devs)" || nok "FIFO devices: '$devs'"
+problems=$(grep -E "$HAP_SPLAT_RE" "$qlog" || true)
+[ -z "$problems" ] && ok "no kernel warning in the guest log" || nok "kernel problems: $problems"
+grep -q 'HAPTEST-RESULT rc=0' "$qlog" && ok "guest side passed" || nok "guest side failed: $(grep -E 'not ok|HAPTEST-RESULT' "$qlog" | head -5)"
+echo "e2e-auth: $pass passed, $fail failed"
+[ "$fail" = 0 ]

@@ -1,0 +1,61 @@
+#!/bin/sh
+# In-guest side of tests/e2e/auth.sh: the controller started by the launch
+# script with the key, the user gripping the handle without effort, the arm
+# powered. While the host's keyless clients attack, the position log is
+# recorded; once the bridge has refused them and 1.5 s passed without a new
+# refusal (and nothing was verified yet), the recording stops and the
+# handle's largest displacement is printed (HAP-ATTACK-DONE). Then serve the
+# host's key-holding client until it has opened and closed its session, and
+# print the module's and the bridge's statistics between markers.
+#   auth.sh PERIOD_US MAX_SECONDS
+. /tests/lib.sh
+period=${1:-1000}
+max_s=${2:-240}
+check "launch script starts proto_interface and the module" hapticctrl.sh start --period-us "$period"
+check "the user grips the handle, no effort" sh -c 'echo "live 0 0 0 0 0 0" > /dev/hap_effort'
+check "arm powered" hapctl power on
+bp=$(pidof proto_interface)
+echo "HAP-BRIDGE-ID uid=$(sed -n 's/^Uid:[[:space:]]*\([0-9]*\).*/\1/p' /proc/$bp/status) gid=$(sed -n 's/^Gid:[[:space:]]*\([0-9]*\).*/\1/p' /proc/$bp/status) capeff=$(sed -n 's/^CapEff:[[:space:]]*//p' /proc/$bp/status)"
+echo "HAP-RUNDIR $(ls -lnd /run /run/hapticctrl | tr '\n' ' ') $(ls -ln /run | tr '\n' ' ')"
+echo "HAP-DEVICES $(ls -ln /dev/hap_rtf_in /dev/hap_rtf_out | awk '{ printf "%s:%s:%s ", $1, $3, $4 }')"
+usleep 500000
+hapctl log > /tmp/attack.csv &
+logger=$!
+echo "HAP-READY period_us=$period"
+pv() { kill -USR1 "$bp" 2>/dev/null; usleep 50000; sed -n "s/^$1: *//p" /run/proto_interface.stats 2>/dev/null | head -1; }
+last=0; quiet=0; t=0
+while [ $t -lt $((max_s * 10)) ]; do
+  usleep 100000
+  t=$((t + 1))
+  kill -0 "$bp" 2>/dev/null || { fail "the bridge is gone ($(tail -3 /run/proto_interface.log | tr '\n' ' '); $(grep -E '^(state|fail_safe):' /dev/hap_stats | tr '\n' ' '))"; break; }
+  r=$(pv rejected); v=$(pv verified)
+  if [ -z "$r" ]; then
+    missing=$((${missing:-0} + 1))
+    [ "$missing" -ge 20 ] && { fail "no bridge counters ($(ls -ln /run/hapticctrl 2>&1 | tr '\n' ' '); $(grep -v '^[a-z_]*: ' /run/proto_interface.log | tail -6 | tr '\n' ' '))"; break; }
+  fi
+  [ "${v:-0}" -gt 0 ] && break
+  if [ "${r:-0}" -gt 0 ] && [ "$r" = "$last" ]; then quiet=$((quiet + 1)); else quiet=0; fi
+  last=$r
+  [ $quiet -ge 15 ] && break
+done
+kill "$logger"; wait "$logger" 2>/dev/null
+expect "nothing was verified during the attack" "$(pv verified)" -eq 0
+echo "HAP-ATTACK-STATS-BEGIN"; cat /run/proto_interface.stats; grep -E '^(sessions_opened|frames_in|vpr_frames|session|power|cycles):' /dev/hap_stats; echo "HAP-ATTACK-STATS-END"
+# Largest displacement of the handle (m) over the recorded cycles.
+awk -F, 'NR == 2 { x = $5; y = $6; z = $7 } NR > 1 { d = ($5 - x)^2 + ($6 - y)^2 + ($7 - z)^2; if (d > m) m = d; n++ }
+  END { printf "HAP-ATTACK-DONE records=%d max_displacement_m=%.9f\n", n, sqrt(m) }' /tmp/attack.csv
+t=0
+while [ $t -lt $((max_s * 10)) ]; do
+  opened=$(stat_value sessions_opened); cur=$(stat_value session)
+  [ "${opened:-0}" -ge 1 ] && [ "$cur" = 0 ] && break
+  usleep 100000
+  t=$((t + 1))
+done
+expect "the key holder opened and closed a session" "$(stat_value sessions_opened)" -ge 1
+usleep 500000
+echo "HAP-STATS-BEGIN"; cat /dev/hap_stats; echo "HAP-STATS-END"
+kill -USR1 "$bp" 2>/dev/null; usleep 300000
+echo "HAP-PROTO-BEGIN"; cat /run/proto_interface.stats 2>/dev/null; echo "HAP-PROTO-END"
+echo "HAP-PROTO-LOG-BEGIN"; cat /run/proto_interface.log 2>/dev/null | head -40; echo "HAP-PROTO-LOG-END"
+check "launch script stops cleanly" hapticctrl.sh stop
+finish

@@ -1,0 +1,97 @@
+//! The bridge's cost per frame, v2 against v1, on this host (a figure for
+//! Documentation/performance.md; not a test):
+//!
+//!   cargo run --release -p hap-auth --example gate_cost [N]
+//!
+//! v1: hap-core's decoder on the received bytes (what `--insecure` does).
+//! v2 in: tag check, window, v1 re-encoding and hap-core's decoder
+//! (`Gate::inspect` + `Gate::commit`) of a `vpr_stream`; a forged one
+//! (`inspect` only, refused at the tag). v2 out: sealing an `answer` read
+//! from the kernel (`Gate::seal_from_kernel`).
+
+use std::hint::black_box;
+use std::time::Instant;
+
+use hap_auth::*;
+use hap_core::fixed::{Pose, Twist};
+use hap_core::protocol::{decode, encode, Answer, Frame, FrameHeader, MAX_FRAME_LEN};
+
+fn per_frame(n: u32, mut f: impl FnMut(u32)) -> f64 {
+    for i in 0..n / 10 {
+        f(i);
+    }
+    let t = Instant::now();
+    for i in 0..n {
+        f(i);
+    }
+    t.elapsed().as_nanos() as f64 / f64::from(n)
+}
+
+fn main() {
+    let n: u32 = std::env::args()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(200_000);
+    let vpr = Frame::VprStream {
+        pose: Pose::default(),
+        twist: Twist::default(),
+    };
+    let h = |seq| FrameHeader {
+        control: 0,
+        session: 1,
+        seq,
+        timestamp_us: seq,
+    };
+    // v1.
+    let mut b = [0u8; MAX_FRAME_LEN];
+    let len = encode(&h(1), &vpr, &mut b);
+    let v1 = per_frame(n, |_| {
+        black_box(decode(black_box(&b[..len])).is_ok());
+    });
+    // v2: a gate with a session (kernel session 1).
+    let mut gate = Gate::new(Psk::test_key());
+    let mut c = ClientAuth::new(Psk::test_key());
+    let open = c.hello(&h(0), [1; NONCE_LEN]);
+    let i = gate.inspect(open.bytes()).unwrap();
+    let _ = gate.commit(&i, [2; NONCE_LEN]);
+    let mut ack = [0u8; MAX_FRAME_LEN];
+    let al = encode(
+        &FrameHeader { session: 1, ..h(1) },
+        &Frame::SessionAck {
+            client_nonce: 1,
+            period_us: 1000,
+        },
+        &mut ack,
+    );
+    let sa = gate.seal_from_kernel(&ack[..al]).unwrap();
+    c.open(sa.bytes()).unwrap();
+    let frames: Vec<Wire> = (1..=n + n / 10)
+        .map(|s| c.seal(&h(s), &vpr).unwrap())
+        .collect();
+    let mut k = 0usize;
+    let v2_in = per_frame(n, |_| {
+        let w = &frames[k];
+        k += 1;
+        let i = gate.inspect(black_box(w.bytes())).unwrap();
+        black_box(gate.commit(&i, [0; NONCE_LEN]));
+    });
+    let mut forged = frames[0];
+    forged.buf[forged.len - 1] ^= 1;
+    let v2_forged = per_frame(n, |_| {
+        black_box(gate.inspect(black_box(forged.bytes())).is_err());
+    });
+    let mut ans = [0u8; MAX_FRAME_LEN];
+    let anl = encode(&h(7), &Frame::Answer(Answer::default()), &mut ans);
+    let v2_out = per_frame(n, |_| {
+        black_box(gate.seal_from_kernel(black_box(&ans[..anl])));
+    });
+    let client_seal = per_frame(n, |s| {
+        black_box(c.seal(&h(s), &vpr));
+    });
+    println!("frames: {n} per figure (release build, one thread)");
+    println!("v1 vpr_stream in (decode):                 {v1:8.0} ns/frame");
+    println!("v2 vpr_stream in (verify+window+v1+decode): {v2_in:8.0} ns/frame");
+    println!("v2 forged vpr_stream (refused at the tag):  {v2_forged:8.0} ns/frame");
+    println!("v2 answer out (decode + seal):              {v2_out:8.0} ns/frame");
+    println!("client: seal a vpr_stream:                  {client_seal:8.0} ns/frame");
+}

@@ -1,0 +1,157 @@
+//! The library's protocol v2 against hap-auth's gate in front of hap-core's
+//! PROTO_IN (a bridge and a kernel in one thread, over UDP): the key
+//! holder opens, configures and streams; a client with another key or none
+//! gets nothing; the key is found in the options, the address or the
+//! environment.
+
+use std::net::UdpSocket;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use hap_auth::{Action, Gate, Psk};
+use hap_core::config::CommandType;
+use hap_core::proto_in::ProtoIn;
+use hap_core::protocol::{encode, Answer, Frame, FrameHeader, MAX_FRAME_LEN};
+use virtuose_api::{Options, VirtContext, VirtError};
+
+struct Peer {
+    addr: String,
+    stop: Arc<AtomicBool>,
+    kernel: Arc<Mutex<ProtoIn>>,
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+    }
+}
+
+fn peer() -> Peer {
+    let sock = UdpSocket::bind("127.0.0.1:0").unwrap();
+    sock.set_read_timeout(Some(Duration::from_millis(20)))
+        .unwrap();
+    let addr = format!("127.0.0.1#{}", sock.local_addr().unwrap().port());
+    let stop = Arc::new(AtomicBool::new(false));
+    let kernel = Arc::new(Mutex::new(ProtoIn::new()));
+    let (st, k) = (stop.clone(), kernel.clone());
+    std::thread::spawn(move || {
+        let mut gate = Gate::new(Psk::test_key());
+        let mut buf = [0u8; 256];
+        let mut seq = 0u32;
+        let mut client = None;
+        while !st.load(Ordering::SeqCst) {
+            let mut out: Vec<Frame> = Vec::new();
+            if let Ok((n, src)) = sock.recv_from(&mut buf) {
+                let Ok(i) = gate.inspect(&buf[..n]) else {
+                    continue;
+                };
+                match gate.commit(&i, [seq as u8; 16]) {
+                    Action::Reply(w, _) => {
+                        let _ = sock.send_to(w.bytes(), src);
+                    }
+                    Action::Forward(v1) => {
+                        client = Some(src);
+                        let o = k.lock().unwrap().handle(v1.bytes(), 1, 1000);
+                        out.extend(o.reply);
+                    }
+                }
+            }
+            // One answer per loop while a session is open.
+            let session = k.lock().unwrap().session();
+            if session != 0 {
+                out.push(Frame::Answer(Answer {
+                    cycle: seq,
+                    ..Answer::default()
+                }));
+            }
+            for f in out {
+                seq += 1;
+                let h = FrameHeader {
+                    control: 0,
+                    session,
+                    seq,
+                    timestamp_us: 0,
+                };
+                let mut b = [0u8; MAX_FRAME_LEN];
+                let n = encode(&h, &f, &mut b);
+                if let (Some(w), Some(c)) = (gate.seal_from_kernel(&b[..n]), client) {
+                    let _ = sock.send_to(w.bytes(), c);
+                }
+            }
+        }
+    });
+    Peer { addr, stop, kernel }
+}
+
+fn quick(key: Option<Psk>) -> Options {
+    Options {
+        reply_timeout: Duration::from_millis(150),
+        attempts: 2,
+        key,
+    }
+}
+
+#[test]
+fn the_key_holder_opens_configures_and_streams() {
+    let p = peer();
+    let mut vc = VirtContext::open_with(&p.addr, quick(Some(Psk::test_key()))).unwrap();
+    assert!(vc.authenticated());
+    assert_ne!(vc.session_id(), 0);
+    vc.set_command_type(CommandType::Impedance).unwrap();
+    assert_eq!(
+        p.kernel.lock().unwrap().config().command_type,
+        CommandType::Impedance
+    );
+    vc.set_position(&[0.01, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+        .unwrap();
+    assert!(vc.wait_answer(Duration::from_secs(1)));
+    vc.get_position().unwrap();
+    std::thread::sleep(Duration::from_millis(50));
+    assert!(p.kernel.lock().unwrap().vpr().valid);
+    vc.close().unwrap();
+    assert_eq!(p.kernel.lock().unwrap().session(), 0);
+}
+
+#[test]
+fn without_the_key_nothing_happens() {
+    let p = peer();
+    let mut other = *Psk::test_key().as_bytes();
+    other[5] ^= 0x10;
+    let e = VirtContext::open_with(&p.addr, quick(Some(Psk::from_bytes(other))));
+    assert!(
+        matches!(e, Err(VirtError::Timeout("open_session"))),
+        "{:?}",
+        e.err()
+    );
+    // v1 (no key anywhere).
+    if std::env::var_os(virtuose_api::KEY_ENV).is_none() {
+        let e = VirtContext::open_with(&p.addr, quick(None));
+        assert!(matches!(e, Err(VirtError::Timeout(_))), "{:?}", e.err());
+    }
+    assert_eq!(p.kernel.lock().unwrap().counters().sessions_opened, 0);
+}
+
+#[test]
+fn the_key_file_in_the_address() {
+    let p = peer();
+    let dir = std::env::temp_dir().join(format!("virt_auth_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let key = dir.join("hap.key");
+    Psk::test_key().write_new(&key).unwrap();
+    let url = format!("{}?key={}", p.addr, key.display());
+    let mut vc = VirtContext::open_with(&url, quick(None)).unwrap();
+    assert!(vc.authenticated());
+    vc.close().unwrap();
+    // A key file readable by others is refused before anything is sent.
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o644)).unwrap();
+    let e = VirtContext::open_with(&url, quick(None));
+    assert!(
+        matches!(&e, Err(VirtError::InvalidArgument(m)) if m.contains("chmod 600")),
+        "{:?}",
+        e.err()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
