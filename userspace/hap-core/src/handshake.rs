@@ -15,7 +15,9 @@
 //! 2. SERVO, woken ([`CycleHandshake::servo_begin`]): `working ← true`
 //!    (SeqCst), then reads `tick` (SeqCst) and `mode`: this cycle is `tick`.
 //! 3. SERVO, done ([`CycleHandshake::servo_end`]): `done_tick ← tick`, then
-//!    `working ← false` (both Release, in that order).
+//!    `working ← false` (both Release, in that order). A SERVO that finds
+//!    the mode `FailSafe` runs nothing and leaves ([`CycleHandshake::servo_leave`]:
+//!    `working ← false`, the cycle is not marked done).
 //! 4. Supervisor, at 3/4 of the period ([`CycleHandshake::check`]): reads
 //!    `tick`, then `working` (Acquire), then `done_tick` (Acquire). SERVO
 //!    finished the current cycle iff `!working && done_tick == tick`.
@@ -110,6 +112,12 @@ impl CycleHandshake {
         self.working.store(false, Ordering::Release);
     }
 
+    /// SERVO: leaving without running the cycle it entered (the mode was
+    /// `FailSafe`): no longer working, and that cycle is not marked done.
+    pub fn servo_leave(&self) {
+        self.working.store(false, Ordering::Release);
+    }
+
     /// SERVO is inside a cycle now.
     pub fn servo_working(&self) -> bool {
         self.working.load(Ordering::Acquire)
@@ -194,6 +202,16 @@ mod tests {
             assert_eq!(Mode::from_u8(m.as_u8()), m);
         }
         assert_eq!(Mode::from_u8(200), Mode::FailSafe);
+    }
+
+    #[test]
+    fn leaving_is_not_finishing() {
+        let h = CycleHandshake::new();
+        let _ = h.top();
+        let _ = h.servo_begin();
+        h.servo_leave();
+        let c = h.check();
+        assert!(!c.working && !c.finished);
     }
 
     #[test]

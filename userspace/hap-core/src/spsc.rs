@@ -188,8 +188,14 @@ fn unpack(out: &mut [u8], k: usize, v: u64) {
 enum PushState {
     LoadTail,
     /// Writing word `k` of the slot at `base` (0: length) for record `head`.
-    Write { head: u64, base: usize, k: usize },
-    Publish { head: u64 },
+    Write {
+        head: u64,
+        base: usize,
+        k: usize,
+    },
+    Publish {
+        head: u64,
+    },
     Done,
 }
 
@@ -246,7 +252,11 @@ impl<'a> PushOp<'a> {
                 }
                 let next = k.saturating_add(1);
                 self.state = if next < slot_words(self.rec.len()) {
-                    PushState::Write { head, base, k: next }
+                    PushState::Write {
+                        head,
+                        base,
+                        k: next,
+                    }
                 } else {
                     PushState::Publish { head }
                 };
@@ -398,7 +408,8 @@ mod tests {
             if i % 3 != 0 {
                 while let Some(n) = r.pop(&mut out) {
                     assert_eq!(n, 13);
-                    let expect: Vec<u8> = (0..13).map(|k| (next_out as u8).wrapping_add(k)).collect();
+                    let expect: Vec<u8> =
+                        (0..13).map(|k| (next_out as u8).wrapping_add(k)).collect();
                     assert_eq!(&out[..], &expect[..]);
                     next_out += 1;
                 }
@@ -447,7 +458,9 @@ mod tests {
         // Full-length and one-shorter records alternate, so that a slot
         // holds words of different records over time.
         let len = rec_bytes.saturating_sub(i % 2).max(1);
-        (0..len).map(|k| (i as u8).wrapping_mul(16).wrapping_add(k as u8 + 1)).collect()
+        (0..len)
+            .map(|k| (i as u8).wrapping_mul(16).wrapping_add(k as u8 + 1))
+            .collect()
     }
 
     struct World {

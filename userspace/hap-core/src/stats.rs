@@ -1163,8 +1163,16 @@ mod tests {
         let mut st = HapStats::new(250);
         for i in 0..500i64 {
             let e = i * 250_000;
-            st.record_cycle(e, e + 900 + i, e + 3_000 + 7 * i, e + 40_000 + 11 * i, i % 7 != 0);
-            st.record_verdict(&Verdict::Good { mode: super::super::clock::Mode::Normal });
+            st.record_cycle(
+                e,
+                e + 900 + i,
+                e + 3_000 + 7 * i,
+                e + 40_000 + 11 * i,
+                i % 7 != 0,
+            );
+            st.record_verdict(&Verdict::Good {
+                mode: super::super::clock::Mode::Normal,
+            });
         }
         st.record_cycle(1 << 40, (1 << 40) + 5, (1 << 40) + 2_000_000, 0, false);
         st.record_reject(DecodeError::BadCrc);
@@ -1203,7 +1211,9 @@ mod tests {
             st.record_verdict(&if i % 11 == 0 {
                 Verdict::Miss { consecutive: 1 }
             } else {
-                Verdict::Good { mode: super::super::clock::Mode::Normal }
+                Verdict::Good {
+                    mode: super::super::clock::Mode::Normal,
+                }
             });
             st.visit_words(WordSet::Recent, |k, w| published[k] = *w);
             if i % 97 == 0 {
