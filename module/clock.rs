@@ -20,10 +20,8 @@
 
 use crate::{
     completion::Wait,
-    hap_core::clock::{
-        FailSafeAction, FailSafeCause, Supervisor, Verdict, FAIL_SAFE_SEQUENCE,
-    },
     device::{HapDevice, OpenFile},
+    hap_core::clock::{FailSafeAction, FailSafeCause, Supervisor, Verdict, FAIL_SAFE_SEQUENCE},
     hap_core::stats::{HapStats, WordSet},
     shared::{ControllerState, Shared},
 };

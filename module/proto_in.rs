@@ -12,8 +12,8 @@
 use crate::{
     completion::Wait,
     hap_core::protocol::{encode, FrameHeader, MAX_FRAME_LEN},
-    kthread,
     hap_core::servo::PowerRequest,
+    kthread,
     shared::{proto_words, Shared},
 };
 use kernel::sync::atomic::Relaxed;
@@ -56,7 +56,11 @@ fn handle_frame(sh: &Shared, bytes: &[u8]) {
         *sh.config.write() = cfg;
     }
     if let Some(on) = outcome.power {
-        sh.request_power(if on { PowerRequest::On } else { PowerRequest::Off });
+        sh.request_power(if on {
+            PowerRequest::On
+        } else {
+            PowerRequest::Off
+        });
     }
     if let Some(reply) = outcome.reply {
         let header = FrameHeader {

@@ -22,12 +22,7 @@
 
 use crate::hap_core::spsc::{self, PushError, Spsc};
 use core::sync::atomic::{fence, AtomicBool, AtomicU32, Ordering};
-use kernel::{
-    bindings, new_mutex,
-    prelude::*,
-    sync::Mutex,
-    types::Opaque,
-};
+use kernel::{bindings, new_mutex, prelude::*, sync::Mutex, types::Opaque};
 
 pub(crate) use core::sync::atomic::AtomicU64;
 

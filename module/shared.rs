@@ -26,7 +26,6 @@ use crate::{
     simulator::{EffortScratch, EFFORT_RECORD_BYTES},
 };
 use core::sync::atomic::{AtomicU8, Ordering};
-use pin_init::init_zeroed;
 use kernel::{
     c_str, new_mutex,
     prelude::*,
@@ -37,6 +36,7 @@ use kernel::{
     },
     time::{Instant, Monotonic},
 };
+use pin_init::init_zeroed;
 
 /// SERVO's data (the spec's `data` structure, under `mtx_data`). Only SERVO
 /// takes `mtx_data` (and module init, for the calibration, before the tasks
@@ -129,7 +129,11 @@ pub(crate) const NEVER: u64 = u64::MAX;
 pub(crate) const PROTO_WORDS: usize = 6 + DecodeError::COUNT + Reject::PROTOCOL_COUNT;
 
 /// PROTO_IN's counters and session as published words (and back).
-pub(crate) fn proto_words(c: &mut ProtoCounters, session: &mut u64, mut f: impl FnMut(usize, &mut u64)) {
+pub(crate) fn proto_words(
+    c: &mut ProtoCounters,
+    session: &mut u64,
+    mut f: impl FnMut(usize, &mut u64),
+) {
     let mut i = 0usize;
     let mut w = |v: &mut u64| {
         f(i, v);

@@ -73,12 +73,20 @@ fn get<const N: usize>(rec: &[u8], at: usize) -> [u8; N] {
 /// Encode keyframes `keys` as a sequence record into `out`; its length.
 fn encode_sequence(keys: &[EffortKeyframe], out: &mut [u8]) -> usize {
     put(out, 0, &[KIND_SEQUENCE]);
-    put(out, 8, &u64::try_from(keys.len()).unwrap_or(0).to_le_bytes());
+    put(
+        out,
+        8,
+        &u64::try_from(keys.len()).unwrap_or(0).to_le_bytes(),
+    );
     let mut at = 16usize;
     for k in keys {
         put(out, at, &k.t_ms.to_le_bytes());
         for (j, v) in k.force_mn.iter().chain(k.torque_mnm.iter()).enumerate() {
-            put(out, at.saturating_add(4).saturating_add(j.saturating_mul(4)), &v.to_le_bytes());
+            put(
+                out,
+                at.saturating_add(4).saturating_add(j.saturating_mul(4)),
+                &v.to_le_bytes(),
+            );
         }
         put(out, at.saturating_add(28), &[k.flags]);
         at = at.saturating_add(KEY_BYTES);
@@ -93,7 +101,11 @@ fn encode_live(s: &EffortSample, out: &mut [u8]) -> usize {
         w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z,
     ];
     for (j, v) in raw.iter().enumerate() {
-        put(out, j.saturating_mul(8).saturating_add(16), &v.0.to_le_bytes());
+        put(
+            out,
+            j.saturating_mul(8).saturating_add(16),
+            &v.0.to_le_bytes(),
+        );
     }
     16 + 6 * 8
 }
@@ -114,12 +126,23 @@ pub(crate) fn take_effort(sh: &Shared, d: &mut ServoData) {
             Some(KIND_LIVE_OFF) => d.cycle.servo.set_live_effort(None),
             Some(KIND_LIVE) => {
                 let fx = |j: usize| {
-                    Fx(i64::from_le_bytes(get(rec, j.saturating_mul(8).saturating_add(16))))
+                    Fx(i64::from_le_bytes(get(
+                        rec,
+                        j.saturating_mul(8).saturating_add(16),
+                    )))
                 };
                 let sample = EffortSample {
                     wrench: Wrench {
-                        force: Vec3 { x: fx(0), y: fx(1), z: fx(2) },
-                        torque: Vec3 { x: fx(3), y: fx(4), z: fx(5) },
+                        force: Vec3 {
+                            x: fx(0),
+                            y: fx(1),
+                            z: fx(2),
+                        },
+                        torque: Vec3 {
+                            x: fx(3),
+                            y: fx(4),
+                            z: fx(5),
+                        },
                     },
                     dead_man: rec.get(1).copied().unwrap_or(0) != 0,
                     buttons: rec.get(2).copied().unwrap_or(0),
@@ -132,7 +155,10 @@ pub(crate) fn take_effort(sh: &Shared, d: &mut ServoData) {
                 for (i, k) in d.keys.iter_mut().enumerate().take(count) {
                     let at = 16usize.saturating_add(i.saturating_mul(KEY_BYTES));
                     let i32_at = |j: usize| {
-                        i32::from_le_bytes(get(rec, at.saturating_add(4).saturating_add(j.saturating_mul(4))))
+                        i32::from_le_bytes(get(
+                            rec,
+                            at.saturating_add(4).saturating_add(j.saturating_mul(4)),
+                        ))
                     };
                     *k = EffortKeyframe {
                         t_ms: u32::from_le_bytes(get(rec, at)),
@@ -232,10 +258,7 @@ impl HapDevice for Effort {
             }
         };
         let ticket = sh.effort.counts().1.saturating_add(1);
-        match sh
-            .effort
-            .push(s.record.get(..rec_len).unwrap_or(&[]))
-        {
+        match sh.effort.push(s.record.get(..rec_len).unwrap_or(&[])) {
             Ok(()) => {}
             Err(Refused::Full) => return Err(EBUSY),
             Err(Refused::Closed) => return Err(EPIPE),

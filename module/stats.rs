@@ -16,6 +16,7 @@
 //! come from its own publication, never from `mtx_proto`.
 
 use crate::{
+    device::{HapDevice, OpenFile},
     hap_core::{
         clock::MISS_LIMIT,
         proto_in::Reject,
@@ -24,7 +25,6 @@ use crate::{
             HIST_RENDER_MAX, STATS_WORDS,
         },
     },
-    device::{HapDevice, OpenFile},
     rtf::RTF_FRAMES,
     shared::{new_stats, Shared, NEVER},
 };
@@ -166,11 +166,7 @@ fn render(sh: &Shared, st: &mut HapStats, out: &mut [u8]) -> usize {
         writeln!(w, "simlog.queued: {simlog_len}")?;
         writeln!(w, "simlog.pushed: {simlog_pushed}")?;
         writeln!(w, "simlog.dropped: {simlog_dropped}")?;
-        writeln!(
-            w,
-            "stats_read_busy: {}",
-            sh.stats_read_busy.load(Relaxed)
-        )?;
+        writeln!(w, "stats_read_busy: {}", sh.stats_read_busy.load(Relaxed))?;
         writeln!(w, "answers_sent: {}", sh.answers_sent.load(Relaxed))?;
         writeln!(
             w,
