@@ -183,8 +183,8 @@ pub(crate) fn take_effort(sh: &Shared, d: &mut ServoData) {
 /// `/dev/hap_effort`.
 pub(crate) struct Effort;
 
-/// Effort writers wait for SERVO to take their record this long at most.
-const EFFORT_TAKE_JIFFIES: c_ulong = 100;
+/// Effort writers wait for SERVO to take their record this long at most (ns).
+const EFFORT_TAKE_NS: i64 = 100_000_000;
 
 /// The effort writers' scratch (`Shared::effort_writer`, a lock only the
 /// writers take).
@@ -263,14 +263,15 @@ impl HapDevice for Effort {
             Err(Refused::Full) => return Err(EBUSY),
             Err(Refused::Closed) => return Err(EPIPE),
         }
-        // Wait (the writer, not SERVO) until SERVO has taken it.
-        let mut waits = 0;
+        // Wait (the writer, not SERVO) until SERVO has taken it. The
+        // completion may hold wake-ups of records already seen taken: each
+        // wait consumes one, the deadline bounds the whole.
+        let deadline = sh.now_ns().saturating_add(EFFORT_TAKE_NS);
         while sh.effort_applied.load(Ordering::Acquire) < ticket {
-            if waits >= 2 || sh.is_stopping() {
+            if sh.now_ns() > deadline || sh.is_stopping() {
                 return Err(EBUSY);
             }
-            sh.effort_taken.wait_timeout(EFFORT_TAKE_JIFFIES / 2);
-            waits = waits.saturating_add(1);
+            sh.effort_taken.wait_timeout(1);
         }
         if let Some(keyframes) = loaded_keys {
             pr_info!(
