@@ -71,12 +71,6 @@ impl Doorbell {
             Ok(())
         }
     }
-
-    /// Sleep (uninterruptibly) until rung or `jiffies` elapsed.
-    pub(crate) fn wait_timeout(&self, jiffies: c_ulong) {
-        // SAFETY: `inner` is an initialised completion; the caller may sleep.
-        unsafe { bindings::wait_for_completion_timeout(self.inner.get(), jiffies) };
-    }
 }
 
 /// Allocate `words` zeroed atomic words (vmalloc-backed when large).
@@ -127,10 +121,6 @@ impl<const REC: usize> Fifo<REC> {
             closed: AtomicBool::new(false),
             discarded: AtomicBool::new(false),
         }))
-    }
-
-    pub(crate) fn capacity(&self) -> usize {
-        self.ring.capacity()
     }
 
     /// The single producer's push (SERVO's, PROTO_IN's): never waits.

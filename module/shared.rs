@@ -80,7 +80,7 @@ impl ServoData {
 /// A `HapStats` built in its allocation (zeroed in place, then reset): the
 /// ~24 KiB never touch the stack.
 pub(crate) fn new_stats(period_us: u32) -> Result<KBox<HapStats>> {
-    let mut st = KBox::init(init_zeroed(), GFP_KERNEL)?;
+    let mut st = KBox::<HapStats>::init(init_zeroed(), GFP_KERNEL)?;
     st.reset(period_us);
     Ok(st)
 }

@@ -81,7 +81,7 @@ fn encode_sequence(keys: &[EffortKeyframe], out: &mut [u8]) -> usize {
     let mut at = 16usize;
     for k in keys {
         put(out, at, &k.t_ms.to_le_bytes());
-        for (j, v) in k.force_mn.iter().chain(k.torque_mnm.iter()).enumerate() {
+        for (j, v) in Iterator::chain(k.force_mn.iter(), k.torque_mnm.iter()).enumerate() {
             put(
                 out,
                 at.saturating_add(4).saturating_add(j.saturating_mul(4)),
