@@ -3,28 +3,31 @@
 //! CLOCK (the spec's hap_clock): the synchronous cycle supervisor.
 //!
 //! - The cycle timer (absolute, hard-IRQ hrtimer on the period grid) is the
-//!   top of each cycle: it posts `cycle_start` to SERVO if SERVO waits at the
-//!   barrier (rendezvous: a SERVO still busy gets no second cycle queued; the
-//!   tick is counted as not posted).
+//!   top of each cycle: it advances the cycle handshake's tick and posts
+//!   `cycle_start` to SERVO if SERVO waits at the barrier (rendezvous: a
+//!   SERVO still busy gets no second cycle queued; the tick is counted as
+//!   not posted).
 //! - The check timer fires at 3/4 of each period and wakes the CLOCK thread
-//!   (SCHED_FIFO 99, above SERVO), which asks hap-core's `Supervisor` whether
-//!   SERVO finished, updates the statistics, sets SERVO's mode (main or
-//!   degraded), and on a stop request or exactly 5 consecutive misses runs
-//!   the fail-safe in `FAIL_SAFE_SEQUENCE` order, then exits.
+//!   (SCHED_FIFO 99, above SERVO), which reads the cycle handshake
+//!   (`hap_core::handshake`: did SERVO finish this tick?), asks hap-core's
+//!   `Supervisor` for the verdict, records the statistics in its own
+//!   `HapStats` and publishes them through a seqcount (`Shared::stats`:
+//!   readers copy, CLOCK never waits for them), sets SERVO's mode (normal,
+//!   degraded or fail-safe), and on a stop request or exactly 5 consecutive
+//!   misses runs the fail-safe in `FAIL_SAFE_SEQUENCE` order, then exits.
+//!   CLOCK takes no lock in its cycle.
 //! - `/dev/hap_stop` (the spec's stop RT-FIFO handler) sets `servo_stop`.
 
 use crate::{
     completion::Wait,
-    hap_core::clock::{
-        FailSafeAction, FailSafeCause, Mode, Supervisor, Verdict, FAIL_SAFE_SEQUENCE,
-    },
-    shared::{state, DeviceFile, Shared},
+    device::{HapDevice, OpenFile},
+    hap_core::clock::{FailSafeAction, FailSafeCause, Supervisor, Verdict, FAIL_SAFE_SEQUENCE},
+    hap_core::stats::{HapStats, WordSet},
+    shared::{ControllerState, Shared},
 };
 use kernel::{
-    fs::{File, Kiocb},
     impl_has_hr_timer,
     iov::IovIterSource,
-    miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
     sync::{
         atomic::{Acquire, Relaxed, Release},
@@ -93,9 +96,9 @@ impl HrTimerCallback for CycleTimer {
         sh.expiry_ns.store(expiry, Release);
         let now = sh.now_ns();
         sh.tick_ns.store(now, Relaxed);
-        sh.tick.fetch_add(1, Release);
+        sh.cycle.top();
         // Rendezvous with SERVO at the barrier.
-        if sh.servo_waiting.load(Acquire) {
+        if sh.cycle.servo_waiting() {
             sh.cycle_start.complete();
         } else {
             sh.ticks_not_posted.add(1, Relaxed);
@@ -141,18 +144,22 @@ pub(crate) fn hrtimer_resolution_ns() -> u32 {
     unsafe { core::ptr::read_volatile(&raw const kernel::bindings::hrtimer_resolution) }
 }
 
-pub(crate) fn mode_to_u32(m: Mode) -> u32 {
-    match m {
-        Mode::Normal => 0,
-        Mode::Degraded => 1,
-        Mode::FailSafe => 2,
-    }
+/// Publish CLOCK's statistics (`set`: what changed since the last time).
+fn publish(sh: &Shared, st: &mut HapStats, set: WordSet) {
+    let w = sh.stats.write();
+    st.visit_words(set, |i, v| w.set(i, *v));
 }
 
 /// CLOCK's thread body.
 pub(crate) fn clock_main(sh: &Shared) {
     let mut sup = Supervisor::new();
     let mut last_tick_seen = 0u64;
+    // CLOCK's own statistics, taken once: from here on no lock.
+    let Some(mut stats) = sh.clock_stats.lock().take() else {
+        pr_err!("CLOCK: statistics already taken\n");
+        return;
+    };
+    publish(sh, &mut stats, WordSet::All);
     while !crate::kthread::should_stop() && !sh.is_stopping() {
         if sh.check_due.wait_timeout(100) == Wait::TimedOut {
             continue;
@@ -163,26 +170,21 @@ pub(crate) fn clock_main(sh: &Shared) {
         if sh.stop_request.load(Acquire) && !sup.stop_requested() {
             sup.request_stop();
         }
-        // SERVO finished this cycle iff it is not working and its last
-        // finished cycle is the current tick.
-        let tick = sh.tick.load(Acquire);
-        let working = sh.servo_working.load(Acquire) || sh.servo_done_tick.load(Acquire) != tick;
-        let verdict = sup.check(working);
-        sh.mode.store(mode_to_u32(sup.mode()), Release);
-        {
-            let mut st = sh.stats.lock();
-            if tick != last_tick_seen {
-                st.record_cycle(
-                    sh.expiry_ns.load(Acquire),
-                    sh.tick_ns.load(Relaxed),
-                    sh.servo_start_ns.load(Acquire),
-                    sh.servo_end_ns.load(Acquire),
-                    !working,
-                );
-                last_tick_seen = tick;
-            }
-            st.record_verdict(&verdict);
+        let c = sh.cycle.check();
+        let verdict = sup.check(!c.finished);
+        sh.cycle.set_mode(sup.mode());
+        if c.tick != last_tick_seen {
+            stats.record_cycle(
+                sh.expiry_ns.load(Acquire),
+                sh.tick_ns.load(Relaxed),
+                sh.servo_start_ns.load(Acquire),
+                sh.servo_end_ns.load(Acquire),
+                c.finished,
+            );
+            last_tick_seen = c.tick;
         }
+        stats.record_verdict(&verdict);
+        publish(sh, &mut stats, WordSet::Recent);
         if let Verdict::FailSafe(cause) = verdict {
             fail_safe(sh, cause);
             return;
@@ -195,13 +197,14 @@ const RELEASE_WAIT_PERIODS: u32 = 4;
 
 /// The fail-safe (spec §3.4, §4.1), in hap-core's order. Runs in CLOCK.
 pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
-    sh.state.store(state::FAIL_SAFE, Release);
+    sh.set_state(ControllerState::FailSafe);
+    let c = sh.cycle.check();
     pr_warn!(
         "fail-safe ({}): start (tick {}, servo done tick {}, working {}, not posted {})\n",
         cause.name(),
-        sh.tick.load(Relaxed),
-        sh.servo_done_tick.load(Relaxed),
-        sh.servo_working.load(Relaxed),
+        c.tick,
+        c.done_tick,
+        c.working,
         sh.ticks_not_posted.load(Relaxed)
     );
     for (i, action) in FAIL_SAFE_SEQUENCE.iter().enumerate() {
@@ -214,6 +217,7 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
             FailSafeAction::CloseProtocol => {
                 sh.proto.lock().close();
                 sh.rtf_out.close(true);
+                sh.rtf_replies.close(true);
                 sh.rtf_in.close(true);
             }
             FailSafeAction::StopTasks => {
@@ -227,11 +231,11 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
                 // record of that last cycle, run on the cut line. A hung
                 // SERVO does not finish: the log is closed without it.
                 let mut waited = 0;
-                while sh.servo_working.load(Acquire) && waited < RELEASE_WAIT_PERIODS {
+                while sh.cycle.servo_working() && waited < RELEASE_WAIT_PERIODS {
                     kernel::time::delay::fsleep(Delta::from_nanos(sh.period_ns()));
-                    waited += 1;
+                    waited = waited.saturating_add(1);
                 }
-                if sh.servo_working.load(Acquire) {
+                if sh.cycle.servo_working() {
                     pr_warn!(
                         "fail-safe ({}): SERVO still inside its cycle after {} periods (hung)\n",
                         cause.name(),
@@ -246,10 +250,10 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
         pr_warn!(
             "fail-safe ({}): step {}/{}: {} (servo {}, gate {}, supply {}, applied torque {})\n",
             cause.name(),
-            i + 1,
+            i.saturating_add(1),
             FAIL_SAFE_SEQUENCE.len(),
             action.name(),
-            if sh.servo_working.load(Acquire) {
+            if sh.cycle.servo_working() {
                 "in cycle"
             } else {
                 "waiting"
@@ -270,27 +274,19 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
 }
 
 /// `/dev/hap_stop`: any write requests the application's termination.
-pub(crate) struct StopDevice {
-    f: DeviceFile,
-}
+pub(crate) struct Stop;
 
-#[vtable]
-impl MiscDevice for StopDevice {
-    type Ptr = KBox<Self>;
+impl HapDevice for Stop {
+    const NAME: &'static CStr = c"hap_stop";
 
-    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
-        Ok(KBox::new(
-            StopDevice {
-                f: DeviceFile::open(file)?,
-            },
-            GFP_KERNEL,
-        )?)
+    fn open(_sh: &Arc<Shared>) -> Result<Self> {
+        Ok(Stop)
     }
 
-    fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
+    fn write(f: &OpenFile<Self>, iov: &mut IovIterSource<'_>) -> Result<usize> {
         let n = iov.len();
         iov.advance(n);
-        kiocb.file().f.shared.stop_request.store(true, Release);
+        f.shared.stop_request.store(true, Release);
         Ok(n)
     }
 }

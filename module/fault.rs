@@ -9,18 +9,18 @@
 //!
 //! Anything else is `EINVAL`.
 
-use crate::shared::DeviceFile;
+use crate::{
+    device::{HapDevice, OpenFile},
+    shared::Shared,
+};
 use kernel::{
-    fs::{File, Kiocb},
     iov::IovIterSource,
-    miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
-    sync::atomic::Release,
+    sync::{atomic::Release, Arc},
 };
 
-pub(crate) struct FaultDevice {
-    f: DeviceFile,
-}
+/// `/dev/hap_fault`.
+pub(crate) struct FaultDevice;
 
 /// A fault to inject.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -54,27 +54,19 @@ fn parse_overrun(b: &[u8]) -> Option<u32> {
     (1..=1000).contains(&n).then_some(n)
 }
 
-#[vtable]
-impl MiscDevice for FaultDevice {
-    type Ptr = KBox<Self>;
+impl HapDevice for FaultDevice {
+    const NAME: &'static CStr = c"hap_fault";
 
-    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
-        Ok(KBox::new(
-            FaultDevice {
-                f: DeviceFile::open(file)?,
-            },
-            GFP_KERNEL,
-        )?)
+    fn open(_sh: &Arc<Shared>) -> Result<Self> {
+        Ok(FaultDevice)
     }
 
-    fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
+    fn write(f: &OpenFile<Self>, iov: &mut IovIterSource<'_>) -> Result<usize> {
         let mut buf = [0u8; 16];
         let len = iov.len();
-        if len == 0 || len > buf.len() {
-            return Err(EINVAL);
-        }
-        let n = iov.copy_from_iter(&mut buf[..len]);
-        let sh = &kiocb.file().f.shared;
+        let dst = buf.get_mut(..len).filter(|d| !d.is_empty()).ok_or(EINVAL)?;
+        let n = iov.copy_from_iter(dst);
+        let sh = &f.shared;
         match parse_fault(buf.get(..n).unwrap_or(&[])).ok_or(EINVAL)? {
             Fault::Overrun(count) => {
                 sh.fault_overruns.store(count, Release);

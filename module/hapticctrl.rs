@@ -18,7 +18,6 @@
 
 use kernel::{
     c_str,
-    miscdevice::{MiscDevice, MiscDeviceOptions, MiscDeviceRegistration},
     prelude::*,
     sync::{atomic::Release, Arc},
 };
@@ -35,6 +34,7 @@ mod hap_core;
 
 mod clock;
 mod completion;
+mod device;
 mod fault;
 mod io;
 mod kthread;
@@ -48,14 +48,15 @@ mod shared;
 mod simulator;
 mod stats;
 
-use clock::{StopDevice, Timers};
+use clock::{Stop, Timers};
+use device::{register, Registration};
 use fault::FaultDevice;
 use hap_core::clock::{validate_period_us, PERIOD_MAX_US, PERIOD_MIN_US};
-use io::PowerDevice;
+use io::Power;
 use kthread::{KThread, SchedClass};
-use rtf::{RtfInDevice, RtfOutDevice};
+use rtf::{RtfIn, RtfOut};
 use shared::Shared;
-use simulator::{EffortDevice, SimLogDevice};
+use simulator::{Effort, SimLog};
 use stats::{HistDevice, StatsDevice};
 
 module! {
@@ -77,41 +78,31 @@ const CLOCK_PRIORITY: u8 = 99;
 const SERVO_PRIORITY: u8 = 80;
 const PROTO_IN_PRIORITY: u8 = 1;
 
-type Device<T> = Pin<KBox<MiscDeviceRegistration<T>>>;
-
-fn register<T: MiscDevice>(name: &'static CStr) -> Result<Device<T>> {
-    KBox::pin_init(
-        MiscDeviceRegistration::register(MiscDeviceOptions { name }),
-        GFP_KERNEL,
-    )
-    .inspect_err(|e| pr_err!("cannot register /dev/{}: {:?}\n", name, e))
-}
-
 /// The char devices (registered before the tasks, removed after them).
 struct Devices {
-    _rtf_in: Device<RtfInDevice>,
-    _rtf_out: Device<RtfOutDevice>,
-    _stop: Device<StopDevice>,
-    _power: Device<PowerDevice>,
-    _stats: Device<StatsDevice>,
-    _hist: Device<HistDevice>,
-    _effort: Device<EffortDevice>,
-    _simlog: Device<SimLogDevice>,
-    _fault: Device<FaultDevice>,
+    _rtf_in: Registration<RtfIn>,
+    _rtf_out: Registration<RtfOut>,
+    _stop: Registration<Stop>,
+    _power: Registration<Power>,
+    _stats: Registration<StatsDevice>,
+    _hist: Registration<HistDevice>,
+    _effort: Registration<Effort>,
+    _simlog: Registration<SimLog>,
+    _fault: Registration<FaultDevice>,
 }
 
 impl Devices {
     fn register() -> Result<Self> {
         Ok(Devices {
-            _rtf_in: register(c_str!("hap_rtf_in"))?,
-            _rtf_out: register(c_str!("hap_rtf_out"))?,
-            _stop: register(c_str!("hap_stop"))?,
-            _power: register(c_str!("hap_power"))?,
-            _stats: register(c_str!("hap_stats"))?,
-            _hist: register(c_str!("hap_hist"))?,
-            _effort: register(c_str!("hap_effort"))?,
-            _simlog: register(c_str!("hap_simlog"))?,
-            _fault: register(c_str!("hap_fault"))?,
+            _rtf_in: register()?,
+            _rtf_out: register()?,
+            _stop: register()?,
+            _power: register()?,
+            _stats: register()?,
+            _hist: register()?,
+            _effort: register()?,
+            _simlog: register()?,
+            _fault: register()?,
         })
     }
 }
@@ -233,7 +224,10 @@ impl Drop for HapticCtrl {
         sh.proto.lock().close();
         sh.stopping.store(true, Release);
         sh.rtf_out.close(true);
+        sh.rtf_replies.close(true);
         sh.rtf_in.close(true);
+        sh.effort.close(true);
+        sh.effort_taken.complete_all();
         sh.cycle_start.complete_all();
         sh.check_due.complete_all();
         sh.rtf_in_ready.complete_all();

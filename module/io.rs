@@ -13,16 +13,15 @@
 //! produce now), six joint torques each in µN·m.
 
 use crate::{
-    hap_core::{fixed::Joints, io::Gate, vp::status},
-    shared::{DeviceFile, Shared},
+    device::{HapDevice, OpenFile},
+    hap_core::{fixed::Joints, io::Gate, servo::PowerRequest, vp::status},
+    shared::Shared,
 };
 use core::fmt::Write;
 use kernel::{
-    fs::{File, Kiocb},
     iov::{IovIterDest, IovIterSource},
-    miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
-    sync::atomic::{Acquire, Release},
+    sync::{atomic::Acquire, Arc},
 };
 
 /// The arm's status bits as the hardware lines show them: SERVO's last
@@ -48,41 +47,32 @@ fn write_torques(w: &mut impl Write, tau: &Joints) -> core::fmt::Result {
     Ok(())
 }
 
-pub(crate) struct PowerDevice {
-    f: DeviceFile,
-}
+/// `/dev/hap_power`.
+pub(crate) struct Power;
 
-#[vtable]
-impl MiscDevice for PowerDevice {
-    type Ptr = KBox<Self>;
+impl HapDevice for Power {
+    const NAME: &'static CStr = c"hap_power";
 
-    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
-        Ok(KBox::new(
-            PowerDevice {
-                f: DeviceFile::open(file)?,
-            },
-            GFP_KERNEL,
-        )?)
+    fn open(_sh: &Arc<Shared>) -> Result<Self> {
+        Ok(Power)
     }
 
-    fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
+    fn write(f: &OpenFile<Self>, iov: &mut IovIterSource<'_>) -> Result<usize> {
         let mut buf = [0u8; 4];
         let len = iov.len();
-        if len == 0 || len > buf.len() {
-            return Err(EINVAL);
-        }
-        let n = iov.copy_from_iter(&mut buf[..len]);
+        let dst = buf.get_mut(..len).filter(|d| !d.is_empty()).ok_or(EINVAL)?;
+        let n = iov.copy_from_iter(dst);
         let req = match buf.get(..n) {
-            Some(b"1") | Some(b"1\n") => 1,
-            Some(b"0") | Some(b"0\n") => 2,
+            Some(b"1") | Some(b"1\n") => PowerRequest::On,
+            Some(b"0") | Some(b"0\n") => PowerRequest::Off,
             _ => return Err(EINVAL),
         };
-        kiocb.file().f.shared.power_request.store(req, Release);
+        f.shared.request_power(req);
         Ok(n)
     }
 
-    fn read_iter(mut kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
-        let sh = &kiocb.file().f.shared;
+    fn read(f: &OpenFile<Self>, pos: &mut i64, iov: &mut IovIterDest<'_>) -> Result<usize> {
+        let sh = &f.shared;
         let st = arm_status(sh);
         let line = &sh.motor_line;
         let gate = line.gate();
@@ -99,6 +89,6 @@ impl MiscDevice for PowerDevice {
         let _ = write!(text, " applied=");
         let _ = write_torques(&mut text, &line.applied());
         let _ = writeln!(text);
-        iov.simple_read_from_buffer(kiocb.ki_pos_mut(), text.as_bytes())
+        iov.simple_read_from_buffer(pos, text.as_bytes())
     }
 }

@@ -3,7 +3,10 @@
 //! The synchronizer (the spec's hap_proto_synchro), in SERVO's context:
 //! try-lock `mtx_proto` to copy VPr (else hap-core extrapolates it), run the
 //! servo cycle, then try-lock `mtx_proto` again to encode the answer frames
-//! into rtf_out (skipped, and counted, when the lock is busy).
+//! into rtf_out (skipped, and counted, when the lock is busy). Only PROTO_IN
+//! holds `mtx_proto` (no device takes it): monitoring cannot make SERVO skip
+//! an answer. rtf_out is a lock-free ring: a full one refuses the answer
+//! (counted in `answers_dropped`), SERVO never waits for its reader.
 
 use crate::{
     hap_core::{
@@ -42,7 +45,7 @@ pub(crate) fn run_cycle(
     }
     let mut frames = [[0u8; MAX_FRAME_LEN]; 2];
     let mut lens = [0usize; 2];
-    let time_us = (sh.now_ns() / 1000) as u32;
+    let time_us = (sh.now_ns() / 1000) as u32; // wraps every ~71 min, as on the wire
     let n = ServoCycle::encode_answers(
         &result.vp,
         session,
@@ -52,7 +55,7 @@ pub(crate) fn run_cycle(
         &mut lens,
     );
     for (frame, len) in frames.iter().zip(lens.iter()).take(n) {
-        if sh.rtf_out.push_overwrite(&frame[..*len]) {
+        if sh.rtf_out.push(frame.get(..*len).unwrap_or(&[])).is_ok() {
             sh.answers_sent.add(1, Relaxed);
         } else {
             sh.answers_dropped.add(1, Relaxed);

@@ -1,101 +1,231 @@
 // SPDX-License-Identifier: GPL-2.0
 
-//! A fixed-capacity ring of fixed-size records, the storage behind the
-//! RT-FIFOs (frames) and the simulator's position log (log records).
-//! Allocated once at insmod; pushing never allocates.
+//! The kernel side of hap-core's lock-free ring (`hap_core::spsc`): the
+//! RT-FIFOs (rtf_in, rtf_out), the simulator's position log and the effort
+//! handoff. hap-core holds the protocol (and its host tests); this file
+//! adds the storage (a `KVVec`: vmalloc-backed when large, as the 1.2 MB
+//! position log), end of file, and waking blocked readers.
+//!
+//! Sides:
+//! - the **producer** is one task (SERVO for rtf_out's answers and the
+//!   position log, PROTO_IN for rtf_out's replies lane), or several writers
+//!   serialised among themselves by `producers`, a lock the consumer never
+//!   takes (rtf_in, the effort handoff);
+//! - the **consumer** is one task (PROTO_IN for rtf_in, SERVO for the
+//!   effort handoff), or the readers of a device, serialised among
+//!   themselves by `consumers`, a lock the producer never takes.
+//!
+//! A push never waits: it succeeds or is refused (full ring, counted).
+//! It then rings the `readable` doorbell only if a reader sleeps: a
+//! `struct completion` (a raw spinlock held for a bounded wake-up, also on
+//! PREEMPT_RT), never a lock a reader can hold while preempted.
 
-use kernel::prelude::*;
+use crate::hap_core::spsc::{self, PushError, Spsc};
+use core::sync::atomic::{fence, AtomicBool, AtomicU32, Ordering};
+use kernel::{bindings, new_mutex, prelude::*, sync::Mutex, types::Opaque};
 
-pub(crate) struct Ring<const REC: usize> {
-    slots: KVec<[u8; REC]>,
-    lens: KVec<u16>,
-    head: usize,
-    len: usize,
-    /// Records overwritten (oldest dropped) or refused because the ring was full.
-    pub(crate) dropped: u64,
-    /// Records pushed in total.
-    pub(crate) pushed: u64,
+pub(crate) use core::sync::atomic::AtomicU64;
+
+/// A `struct completion` used as a doorbell: rung by the producer, waited
+/// on (interruptibly) by readers.
+#[pin_data]
+pub(crate) struct Doorbell {
+    #[pin]
+    inner: Opaque<bindings::completion>,
 }
 
-impl<const REC: usize> Ring<REC> {
-    pub(crate) fn new(capacity: usize) -> Result<Self> {
-        let mut slots = KVec::with_capacity(capacity, GFP_KERNEL)?;
-        let mut lens = KVec::with_capacity(capacity, GFP_KERNEL)?;
-        for _ in 0..capacity {
-            slots.push([0u8; REC], GFP_KERNEL)?;
-            lens.push(0u16, GFP_KERNEL)?;
-        }
-        Ok(Ring {
-            slots,
-            lens,
-            head: 0,
-            len: 0,
-            dropped: 0,
-            pushed: 0,
+// SAFETY: a `struct completion` may be signalled and waited on from any task.
+unsafe impl Send for Doorbell {}
+// SAFETY: all operations go through the kernel's own locking.
+unsafe impl Sync for Doorbell {}
+
+impl Doorbell {
+    pub(crate) fn new() -> impl PinInit<Self> {
+        pin_init!(Self {
+            inner <- Opaque::ffi_init(|slot: *mut bindings::completion| {
+                // SAFETY: `slot` points to an uninitialised `struct completion`.
+                unsafe { bindings::init_completion(slot) };
+            }),
         })
     }
 
-    pub(crate) fn capacity(&self) -> usize {
-        self.slots.len()
+    pub(crate) fn ring(&self) {
+        // SAFETY: `inner` is an initialised completion.
+        unsafe { bindings::complete(self.inner.get()) };
     }
 
-    pub(crate) fn len(&self) -> usize {
-        self.len
+    pub(crate) fn ring_all(&self) {
+        // SAFETY: `inner` is an initialised completion.
+        unsafe { bindings::complete_all(self.inner.get()) };
     }
 
-    pub(crate) fn is_full(&self) -> bool {
-        self.len >= self.capacity()
-    }
-
-    /// Append `rec` (at most `REC` bytes); when full, the oldest record is
-    /// dropped (counted). Returns false if a record was dropped.
-    pub(crate) fn push_overwrite(&mut self, rec: &[u8]) -> bool {
-        let cap = self.capacity();
-        if cap == 0 || rec.len() > REC {
-            self.dropped = self.dropped.saturating_add(1);
-            return false;
+    /// Sleep until rung, a signal (`ERESTARTSYS`) or `jiffies` elapsed.
+    pub(crate) fn wait_interruptible(&self, jiffies: c_ulong) -> Result {
+        // SAFETY: `inner` is an initialised completion; readers may sleep.
+        let r = unsafe {
+            bindings::wait_for_completion_interruptible_timeout(self.inner.get(), jiffies)
+        };
+        if r < 0 {
+            Err(ERESTARTSYS)
+        } else {
+            Ok(())
         }
-        let mut kept_all = true;
-        if self.len == cap {
-            self.head = self.head.wrapping_add(1) % cap;
-            self.len = self.len.saturating_sub(1);
-            self.dropped = self.dropped.saturating_add(1);
-            kept_all = false;
-        }
-        let idx = self.head.wrapping_add(self.len) % cap;
-        if let (Some(slot), Some(l)) = (self.slots.get_mut(idx), self.lens.get_mut(idx)) {
-            slot[..rec.len()].copy_from_slice(rec);
-            *l = rec.len() as u16;
-            self.len = self.len.saturating_add(1);
-            self.pushed = self.pushed.saturating_add(1);
-        }
-        kept_all
+    }
+}
+
+/// Allocate `words` zeroed atomic words (vmalloc-backed when large).
+fn storage(words: usize) -> Result<KVVec<AtomicU64>> {
+    let mut v = KVVec::with_capacity(words, GFP_KERNEL)?;
+    for _ in 0..words {
+        v.push(AtomicU64::new(0), GFP_KERNEL)?;
+    }
+    Ok(v)
+}
+
+/// A ring of records of at most `REC` bytes with its doorbell and end of file.
+#[pin_data]
+pub(crate) struct Fifo<const REC: usize> {
+    ring: Spsc<KVVec<AtomicU64>>,
+    /// Serialises several producers (device writers) among themselves.
+    #[pin]
+    producers: Mutex<()>,
+    /// Serialises several consumers (device readers) among themselves.
+    #[pin]
+    consumers: Mutex<()>,
+    #[pin]
+    readable: Doorbell,
+    /// Readers asleep on `readable`.
+    sleepers: AtomicU32,
+    /// No more pushes: readers drain what is queued, then see end of file.
+    closed: AtomicBool,
+    /// Closed and what is queued is dropped: readers see end of file at once.
+    discarded: AtomicBool,
+}
+
+/// Why a push was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Refused {
+    Full,
+    Closed,
+}
+
+impl<const REC: usize> Fifo<REC> {
+    pub(crate) fn new(capacity: usize) -> Result<impl PinInit<Self>> {
+        let words = storage(spsc::storage_words(capacity, REC))?;
+        Ok(pin_init!(Self {
+            ring: Spsc::new(words, REC),
+            producers <- new_mutex!(()),
+            consumers <- new_mutex!(()),
+            readable <- Doorbell::new(),
+            sleepers: AtomicU32::new(0),
+            closed: AtomicBool::new(false),
+            discarded: AtomicBool::new(false),
+        }))
     }
 
-    /// Append `rec` only if there is room; a full ring refuses it (counted).
-    pub(crate) fn push_if_room(&mut self, rec: &[u8]) -> bool {
-        if self.is_full() {
-            self.dropped = self.dropped.saturating_add(1);
-            return false;
+    /// The single producer's push (SERVO's, PROTO_IN's): never waits.
+    pub(crate) fn push(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
+        if self.closed.load(Ordering::Acquire) {
+            return Err(Refused::Closed);
         }
-        self.push_overwrite(rec)
+        match self.ring.push(rec) {
+            Ok(()) => {}
+            Err(PushError::Full) | Err(PushError::TooLong) => return Err(Refused::Full),
+        }
+        self.wake_readers();
+        Ok(())
     }
 
-    /// Remove the oldest record into `out`; its length.
-    pub(crate) fn pop(&mut self, out: &mut [u8; REC]) -> Option<usize> {
-        if self.len == 0 {
+    /// Ring the doorbell if a reader sleeps on it (after a push here, or in
+    /// a lane read together with this one, see [`Fifo::pop_wait_with`]).
+    pub(crate) fn wake_readers(&self) {
+        // Pairs with the fence in `pop_wait_with`: either the reader sees
+        // the record, or we see it asleep and ring.
+        fence(Ordering::SeqCst);
+        if self.sleepers.load(Ordering::Relaxed) != 0 {
+            self.readable.ring();
+        }
+    }
+
+    /// A push from one of several writers (device `write()`s): they queue
+    /// among themselves on `producers`, which the consumer never takes.
+    pub(crate) fn push_serialised(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
+        let _g = self.producers.lock();
+        self.push(rec)
+    }
+
+    /// The single consumer's pop (PROTO_IN's, SERVO's): never waits.
+    pub(crate) fn pop(&self, out: &mut [u8; REC]) -> Option<usize> {
+        if self.discarded.load(Ordering::Acquire) {
             return None;
         }
-        let idx = self.head;
-        let n = usize::from(*self.lens.get(idx)?);
-        out.copy_from_slice(self.slots.get(idx)?);
-        self.head = self.head.wrapping_add(1) % self.capacity().max(1);
-        self.len = self.len.saturating_sub(1);
-        Some(n)
+        self.ring.pop(out)
     }
 
-    pub(crate) fn clear(&mut self) {
-        self.head = 0;
-        self.len = 0;
+    /// A pop from one of several readers, without waiting.
+    pub(crate) fn pop_serialised(&self, out: &mut [u8; REC]) -> Option<usize> {
+        let _g = self.consumers.lock();
+        self.pop(out)
+    }
+
+    /// A reader's pop: the oldest record, waiting for one unless `nonblock`.
+    /// `Ok(0)`: end of file (closed and drained, or discarded).
+    pub(crate) fn pop_wait(&self, out: &mut [u8; REC], nonblock: bool) -> Result<usize> {
+        self.pop_wait_with(None, out, nonblock)
+    }
+
+    /// [`Fifo::pop_wait`] over two lanes: `first` (if any) is taken before
+    /// this ring; readers sleep on this ring's doorbell, so `first`'s
+    /// producer calls [`Fifo::wake_readers`] on this ring after each push.
+    pub(crate) fn pop_wait_with(
+        &self,
+        first: Option<&Fifo<REC>>,
+        out: &mut [u8; REC],
+        nonblock: bool,
+    ) -> Result<usize> {
+        let take = |out: &mut [u8; REC]| {
+            let _g = self.consumers.lock();
+            first.and_then(|f| f.pop(out)).or_else(|| self.pop(out))
+        };
+        loop {
+            if let Some(n) = take(out) {
+                return Ok(n);
+            }
+            if self.closed.load(Ordering::Acquire) {
+                // A record pushed just before the close is still read.
+                return Ok(take(out).unwrap_or(0));
+            }
+            if nonblock {
+                return Err(EAGAIN);
+            }
+            self.sleepers.fetch_add(1, Ordering::SeqCst);
+            fence(Ordering::SeqCst);
+            let empty = self.ring.is_empty() && first.is_none_or(|f| f.ring.is_empty());
+            let r = if empty && !self.closed.load(Ordering::Acquire) {
+                // The timeout only bounds a stale wake-up count's effect.
+                self.readable.wait_interruptible(100)
+            } else {
+                Ok(())
+            };
+            self.sleepers.fetch_sub(1, Ordering::SeqCst);
+            r?;
+        }
+    }
+
+    /// Close: no more pushes; wake every reader. With `discard`, readers see
+    /// end of file at once (rtf_in, rtf_out); without, they drain what is
+    /// queued first (the position log, kept for post-mortem analysis).
+    /// Takes no lock: the fail-safe calls it.
+    pub(crate) fn close(&self, discard: bool) {
+        if discard {
+            self.discarded.store(true, Ordering::Release);
+        }
+        self.closed.store(true, Ordering::Release);
+        self.readable.ring_all();
+    }
+
+    /// (records queued now, records pushed, records refused)
+    pub(crate) fn counts(&self) -> (usize, u64, u64) {
+        (self.ring.len(), self.ring.pushed(), self.ring.dropped())
     }
 }

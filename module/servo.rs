@@ -1,29 +1,43 @@
 // SPDX-License-Identifier: GPL-2.0
 
 //! SERVO (the spec's hap_servo): waits at the cycle barrier, then runs one
-//! servo cycle under `mtx_data`: hap-core's `ServoCycle::run` (get_measures →
-//! logical/physical state → cartesian_control → send_commands → simulate_arm)
-//! between the synchronizer's `receive_vp` and `send_vp`, then logs the
-//! simulator's position. The main and the auxiliary (degraded) path are the
-//! same code (spec §3.5); CLOCK's supervisor picks the mode.
-//! No allocation and no printk inside the cycle. Motor commands go through
-//! hap_io's motor line (`Shared::motor_line`), which is outside every lock:
-//! the fail-safe cuts it whatever SERVO is doing.
+//! servo cycle under `mtx_data`: takes the effort commands handed over since
+//! its last cycle, then hap-core's `ServoCycle::run` (get_measures →
+//! logical/physical state → cartesian_control → send_commands →
+//! simulate_arm) between the synchronizer's `receive_vp` and `send_vp`, then
+//! logs the simulator's position. The main and the auxiliary (degraded) path
+//! are the same code (spec §3.5); CLOCK's supervisor picks the mode through
+//! the cycle handshake (`hap_core::handshake`); in `FailSafe` SERVO runs
+//! nothing and leaves.
+//!
+//! Locks inside the cycle: `mtx_data` (only SERVO takes it, and module init
+//! before the tasks start), a try-lock of `mtx_proto` (PROTO_IN's; no device
+//! takes it) and a try-read of the configuration rwsem (PROTO_IN's). No
+//! lock a system call can hold: rtf_out, the position log and the effort
+//! handoff are lock-free rings, a reader being stopped or preempted cannot
+//! delay SERVO. No allocation and no printk inside the cycle. Motor commands
+//! go through hap_io's motor line (`Shared::motor_line`), which is outside
+//! every lock: the fail-safe cuts it whatever SERVO is doing.
 
 use crate::{
     completion::Wait,
-    hap_core::servo::{PowerRequest, ServoInputs, ServoMode},
+    hap_core::{
+        clock::Mode,
+        servo::{PowerRequest, ServoInputs, ServoMode},
+        simulator::LogRecord,
+    },
     kthread, proto_synchro,
     shared::{ServoData, Shared},
+    simulator::take_effort,
 };
 use kernel::sync::atomic::{Acquire, Relaxed, Release};
 
 /// SERVO's thread body.
 pub(crate) fn servo_main(sh: &Shared) {
     while !kthread::should_stop() && !sh.is_stopping() {
-        sh.servo_waiting.store(true, Release);
+        sh.cycle.set_servo_waiting(true);
         let w = sh.cycle_start.wait_timeout(100);
-        sh.servo_waiting.store(false, Release);
+        sh.cycle.set_servo_waiting(false);
         if sh.is_stopping() {
             break;
         }
@@ -31,8 +45,15 @@ pub(crate) fn servo_main(sh: &Shared) {
             continue;
         }
         // The spec's servo_working = TRUE.
-        sh.servo_working.store(true, Release);
-        let tick = sh.tick.load(Acquire);
+        let start = sh.cycle.servo_begin();
+        let mode = match start.mode {
+            Mode::Normal => ServoMode::Main,
+            Mode::Degraded => ServoMode::Degraded,
+            Mode::FailSafe => {
+                sh.cycle.servo_leave();
+                break;
+            }
+        };
         sh.servo_start_ns.store(sh.now_ns(), Release);
 
         let mut data = sh.data.lock();
@@ -40,12 +61,12 @@ pub(crate) fn servo_main(sh: &Shared) {
             // The hung SERVO is released only by rmmod: it never finishes.
             break;
         }
-        servo_cycle(sh, &mut data);
+        take_effort(sh, &mut data);
+        servo_cycle(sh, &mut data, mode);
         drop(data);
 
         sh.servo_end_ns.store(sh.now_ns(), Release);
-        sh.servo_done_tick.store(tick, Release);
-        sh.servo_working.store(false, Release);
+        sh.cycle.servo_end(start.tick);
     }
 }
 
@@ -57,10 +78,10 @@ pub(crate) fn servo_main(sh: &Shared) {
 /// so the host replay starts from the same state.
 pub(crate) fn calibrate(sh: &Shared) {
     let mut data = sh.data.lock();
-    servo_cycle(sh, &mut data);
+    servo_cycle(sh, &mut data, ServoMode::Main);
 }
 
-fn servo_cycle(sh: &Shared, data: &mut ServoData) {
+fn servo_cycle(sh: &Shared, data: &mut ServoData, mode: ServoMode) {
     // Configuration: a fresh copy unless PROTO_IN is writing it.
     match sh.config.try_read() {
         Some(cfg) => data.config = *cfg,
@@ -68,12 +89,8 @@ fn servo_cycle(sh: &Shared, data: &mut ServoData) {
             sh.config_busy.add(1, Relaxed);
         }
     }
-    let power_request = match sh.power_request.xchg(0, Relaxed) {
-        // After a fail-safe the motor line refuses a power-on by itself.
-        1 => PowerRequest::On,
-        2 => PowerRequest::Off,
-        _ => PowerRequest::None,
-    };
+    // After a fail-safe the motor line refuses a power-on by itself.
+    let power_request = sh.take_power_request();
     if power_request == PowerRequest::On {
         sh.power_on_cycle.store(data.cycle.servo.cycle(), Relaxed);
     }
@@ -81,21 +98,16 @@ fn servo_cycle(sh: &Shared, data: &mut ServoData) {
         power_request,
         live_effort: None,
     };
-    let mode = if sh.mode.load(Acquire) == 0 {
-        ServoMode::Main
-    } else {
-        ServoMode::Degraded
-    };
 
     let result = proto_synchro::run_cycle(sh, data, &sh.motor_line, &inputs, mode);
     sh.last_status.store(result.vp.status, Relaxed);
     if result.extrapolated {
         sh.vpr_extrapolated.add(1, Relaxed);
     }
-    // The simulator's position log.
-    let mut rec = [0u8; crate::hap_core::simulator::LogRecord::SIZE];
+    // The simulator's position log: refused (counted) when full, never waits.
+    let mut rec = [0u8; LogRecord::SIZE];
     data.cycle.servo.log_record().encode(&mut rec);
-    sh.simlog.push_overwrite(&rec);
+    let _ = sh.simlog.push(&rec);
 }
 
 /// What the fault injection did to this cycle.

@@ -8,12 +8,24 @@
 use crate::{
     completion::Completion,
     hap_core::{
-        config::ServoConfig, cycle::ServoCycle, io::MotorLine, proto_in::ProtoIn,
-        protocol::MAX_FRAME_LEN, simulator::LogRecord, stats::HapStats,
+        config::ServoConfig,
+        cycle::ServoCycle,
+        effort::{EffortKeyframe, EFFORT_CAPACITY},
+        handshake::CycleHandshake,
+        io::MotorLine,
+        proto_in::{ProtoCounters, ProtoIn, Reject},
+        protocol::{DecodeError, MAX_FRAME_LEN},
+        seqlock::SeqWords,
+        servo::PowerRequest,
+        simulator::LogRecord,
+        stats::{HapStats, STATS_WORDS},
     },
-    rtf::{RtFifo, RtfInCounters, RTF_FRAMES},
+    ring::{AtomicU64, Fifo},
+    rtf::{RtfInCounters, RTF_FRAMES},
     rwsem::RwSem,
+    simulator::{EffortScratch, EFFORT_RECORD_BYTES},
 };
+use core::sync::atomic::{AtomicU8, Ordering};
 use kernel::{
     c_str, new_mutex,
     prelude::*,
@@ -24,26 +36,142 @@ use kernel::{
     },
     time::{Instant, Monotonic},
 };
+use pin_init::init_zeroed;
 
-/// SERVO's data (the spec's `data` structure, under `mtx_data`).
+/// SERVO's data (the spec's `data` structure, under `mtx_data`). Only SERVO
+/// takes `mtx_data` (and module init, for the calibration, before the tasks
+/// start); device writes reach SERVO through lock-free handoffs.
+#[pin_data]
 pub(crate) struct ServoData {
     pub(crate) cycle: ServoCycle,
     /// SERVO's copy of the configuration, refreshed when the rwsem is free.
     pub(crate) config: ServoConfig,
+    /// Scratch for an effort handoff record and its keyframes.
+    pub(crate) handoff: [u8; EFFORT_RECORD_BYTES],
+    pub(crate) keys: [EffortKeyframe; EFFORT_CAPACITY],
+}
+
+// SAFETY: `EffortKeyframe` is integers only (`u32`, `[i32; 3]` twice, `u8`):
+// all-zero is a valid value (`EffortKeyframe::ZERO`).
+unsafe impl Zeroable for EffortKeyframe {}
+// SAFETY: every field of `HapStats` is an integer, a `bool` or an array or
+// struct of them (see hap-core's stats.rs, which builds it from zeroes in
+// `HapStats::reset`'s test): all-zero is a valid value.
+unsafe impl Zeroable for HapStats {}
+
+impl ServoData {
+    /// SERVO's data, built in its allocation: the scratch buffers zeroed in
+    /// place, the servo state written by hap-core's constructor.
+    pub(crate) fn new_boxed(period_us: u32) -> Result<KBox<ServoData>> {
+        let mut data = KBox::init(
+            init!(ServoData {
+                cycle: ServoCycle::new(period_us),
+                config: ServoConfig::default(),
+                handoff <- init_zeroed(),
+                keys <- init_zeroed(),
+            }),
+            GFP_KERNEL,
+        )?;
+        data.cycle.servo.init();
+        Ok(data)
+    }
+}
+
+/// A `HapStats` built in its allocation (zeroed in place, then reset): the
+/// ~24 KiB never touch the stack.
+pub(crate) fn new_stats(period_us: u32) -> Result<KBox<HapStats>> {
+    let mut st = KBox::<HapStats>::init(init_zeroed(), GFP_KERNEL)?;
+    st.reset(period_us);
+    Ok(st)
 }
 
 /// Position-log records kept (about 4 s at 1 kHz).
 pub(crate) const SIMLOG_RECORDS: usize = 4096;
 
+/// Effort handoff records in flight (writers wait for SERVO to take theirs).
+pub(crate) const EFFORT_SLOTS: usize = 2;
+
 /// Controller state, as shown in /dev/hap_stats.
-pub(crate) mod state {
-    pub(crate) const RUNNING: u32 = 0;
-    pub(crate) const FAIL_SAFE: u32 = 1;
-    pub(crate) const NAMES: [&str; 2] = ["running", "fail_safe"];
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum ControllerState {
+    Running,
+    FailSafe,
+}
+
+impl ControllerState {
+    pub(crate) const fn as_u8(self) -> u8 {
+        match self {
+            ControllerState::Running => 0,
+            ControllerState::FailSafe => 1,
+        }
+    }
+
+    /// Unknown values read as `FailSafe` (the safe side).
+    pub(crate) const fn from_u8(v: u8) -> Self {
+        match v {
+            0 => ControllerState::Running,
+            _ => ControllerState::FailSafe,
+        }
+    }
+
+    pub(crate) const fn name(self) -> &'static str {
+        match self {
+            ControllerState::Running => "running",
+            ControllerState::FailSafe => "fail_safe",
+        }
+    }
 }
 
 /// No event recorded yet.
 pub(crate) const NEVER: u64 = u64::MAX;
+
+/// Words of PROTO_IN's published counters: `ProtoCounters` then the session.
+pub(crate) const PROTO_WORDS: usize = 6 + DecodeError::COUNT + Reject::PROTOCOL_COUNT;
+
+/// PROTO_IN's counters and session as published words (and back).
+pub(crate) fn proto_words(
+    c: &mut ProtoCounters,
+    session: &mut u64,
+    mut f: impl FnMut(usize, &mut u64),
+) {
+    let mut i = 0usize;
+    let mut w = |v: &mut u64| {
+        f(i, v);
+        i = i.saturating_add(1);
+    };
+    w(&mut c.accepted);
+    c.decode_rejects.iter_mut().for_each(&mut w);
+    c.protocol_rejects.iter_mut().for_each(&mut w);
+    w(&mut c.vpr_frames);
+    w(&mut c.config_frames);
+    w(&mut c.sessions_opened);
+    w(&mut c.replies);
+    w(session);
+}
+
+/// A fixed array of atomic words (small publications, built inline).
+pub(crate) struct Words<const N: usize>([AtomicU64; N]);
+
+impl<const N: usize> Words<N> {
+    pub(crate) const fn new() -> Self {
+        Words([const { AtomicU64::new(0) }; N])
+    }
+}
+
+impl<const N: usize> core::ops::Deref for Words<N> {
+    type Target = [AtomicU64];
+    fn deref(&self) -> &[AtomicU64] {
+        &self.0
+    }
+}
+
+fn atomic_words(n: usize) -> Result<KVVec<AtomicU64>> {
+    let mut v = KVVec::with_capacity(n, GFP_KERNEL)?;
+    for _ in 0..n {
+        v.push(AtomicU64::new(0), GFP_KERNEL)?;
+    }
+    Ok(v)
+}
 
 #[pin_data]
 pub(crate) struct Shared {
@@ -60,38 +188,54 @@ pub(crate) struct Shared {
     /// A frame is in rtf_in (the spec's `sem_rtf_in`): rtf_in handler → PROTO_IN.
     #[pin]
     pub(crate) rtf_in_ready: Completion,
+    /// Device writers (serialised among themselves) → PROTO_IN.
     #[pin]
-    pub(crate) rtf_in: RtFifo<MAX_FRAME_LEN>,
+    pub(crate) rtf_in: Fifo<MAX_FRAME_LEN>,
+    /// SERVO's answers → readers of /dev/hap_rtf_out.
     #[pin]
-    pub(crate) rtf_out: RtFifo<MAX_FRAME_LEN>,
+    pub(crate) rtf_out: Fifo<MAX_FRAME_LEN>,
+    /// PROTO_IN's replies → readers of /dev/hap_rtf_out (read before the
+    /// answers; a second lane so that each ring has one producer).
+    #[pin]
+    pub(crate) rtf_replies: Fifo<MAX_FRAME_LEN>,
     pub(crate) rtf_in_counters: RtfInCounters,
 
     /// `mtx_proto`: the protocol state and the VPr shared memory. PROTO_IN
-    /// locks it; SERVO only try-locks it.
+    /// locks it; SERVO only try-locks it; no device takes it.
     #[pin]
     pub(crate) proto: Mutex<KBox<ProtoIn>>,
+    /// PROTO_IN's counters and session, published after each frame.
+    pub(crate) proto_pub: SeqWords<Words<PROTO_WORDS>>,
     /// `mtx_data`: SERVO's data.
     #[pin]
     pub(crate) data: Mutex<KBox<ServoData>>,
     /// Read-mostly configuration: PROTO_IN writes, SERVO try-reads.
     #[pin]
     pub(crate) config: RwSem<ServoConfig>,
-    /// Timing statistics and counters (CLOCK updates, /dev/hap_stats reads).
+    /// CLOCK's own statistics, taken by CLOCK once when it starts.
     #[pin]
-    pub(crate) stats: Mutex<KBox<HapStats>>,
-    /// The simulator's position log: one `LogRecord` per cycle (an RT-FIFO
-    /// to the off-line analysis; the oldest record goes when nobody reads).
+    pub(crate) clock_stats: Mutex<Option<KBox<HapStats>>>,
+    /// The statistics as CLOCK publishes them every period (readers copy).
+    pub(crate) stats: SeqWords<KVVec<AtomicU64>>,
+    /// The simulator's position log: one `LogRecord` per cycle, SERVO →
+    /// readers of /dev/hap_simlog (when full, new records are refused and
+    /// counted).
     #[pin]
-    pub(crate) simlog: RtFifo<{ LogRecord::SIZE }>,
+    pub(crate) simlog: Fifo<{ LogRecord::SIZE }>,
+    /// Effort commands, parsed and validated by the device writer, taken by
+    /// SERVO at the top of its next cycle.
+    #[pin]
+    pub(crate) effort: Fifo<EFFORT_RECORD_BYTES>,
+    /// SERVO took an effort record (`effort_applied` moved).
+    #[pin]
+    pub(crate) effort_taken: Completion,
+    /// The effort writers' lock and scratch (SERVO never takes it).
+    #[pin]
+    pub(crate) effort_writer: Mutex<KBox<EffortScratch>>,
+    pub(crate) effort_applied: AtomicU64,
 
-    // Flags and stamps (lock-free between the tasks).
-    /// SERVO is inside its cycle (the spec's `servo_working`).
-    pub(crate) servo_working: Atomic<bool>,
-    /// SERVO waits at the cycle barrier.
-    pub(crate) servo_waiting: Atomic<bool>,
-    /// Timer ticks (cycle index); SERVO's last finished cycle index.
-    pub(crate) tick: Atomic<u64>,
-    pub(crate) servo_done_tick: Atomic<u64>,
+    /// The cycle handshake (tick, SERVO working / done tick / waiting, mode).
+    pub(crate) cycle: CycleHandshake,
     /// Ticks at which SERVO was still busy, so the cycle start was not posted.
     pub(crate) ticks_not_posted: Atomic<u64>,
     /// ns since `epoch`: current cycle's timer expiry, the timer callback's
@@ -100,14 +244,12 @@ pub(crate) struct Shared {
     pub(crate) tick_ns: Atomic<i64>,
     pub(crate) servo_start_ns: Atomic<i64>,
     pub(crate) servo_end_ns: Atomic<i64>,
-    /// Servo mode chosen by CLOCK's supervisor (`clock::Mode` as u32).
-    pub(crate) mode: Atomic<u32>,
-    /// `state::*`
-    pub(crate) state: Atomic<u32>,
+    /// `ControllerState` as its `u8`.
+    state: AtomicU8,
     /// `servo_stop`: a stop request from /dev/hap_stop.
     pub(crate) stop_request: Atomic<bool>,
-    /// Power request for the arm: 0 none, 1 on, 2 off (consumed by SERVO).
-    pub(crate) power_request: Atomic<u32>,
+    /// Power request for the arm (`PowerRequest` as its `u8`), consumed by SERVO.
+    power_request: AtomicU8,
     /// hap_io's motor line (gate, supply, the DAC's command): outside every
     /// lock. SERVO writes commands through it, the simulated motors read it
     /// at every sub-step, the fail-safe cuts it with two stores.
@@ -131,27 +273,26 @@ pub(crate) struct Shared {
     pub(crate) answers_dropped: Atomic<u64>,
     pub(crate) vpr_extrapolated: Atomic<u64>,
     pub(crate) config_busy: Atomic<u64>,
+    /// Reads of the statistics that overlapped CLOCK's writes every attempt.
+    pub(crate) stats_read_busy: Atomic<u64>,
 }
 
 impl Shared {
     pub(crate) fn new(period_us: u32) -> Result<impl PinInit<Self, Error>> {
         let proto = KBox::new(ProtoIn::new(), GFP_KERNEL)?;
-        // Built in place in the allocation (hap-core's types are a few KiB).
-        let mut data = KBox::write(
-            KBox::<ServoData>::new_uninit(GFP_KERNEL)?,
-            ServoData {
-                cycle: ServoCycle::new(period_us),
-                config: ServoConfig::default(),
-            },
-        );
-        data.cycle.servo.init();
-        let stats = KBox::write(
-            KBox::<HapStats>::new_uninit(GFP_KERNEL)?,
-            HapStats::new(period_us),
-        );
-        let simlog = RtFifo::new(SIMLOG_RECORDS)?;
-        let rtf_in = RtFifo::new(RTF_FRAMES)?;
-        let rtf_out = RtFifo::new(RTF_FRAMES)?;
+        let data = ServoData::new_boxed(period_us)?;
+        let mut own_stats = new_stats(period_us)?;
+        let stats = SeqWords::new(atomic_words(STATS_WORDS)?);
+        {
+            let w = stats.write();
+            own_stats.visit_words(crate::hap_core::stats::WordSet::All, |i, v| w.set(i, *v));
+        }
+        let simlog = Fifo::new(SIMLOG_RECORDS)?;
+        let rtf_in = Fifo::new(RTF_FRAMES)?;
+        let rtf_out = Fifo::new(RTF_FRAMES)?;
+        let rtf_replies = Fifo::new(RTF_FRAMES)?;
+        let effort = Fifo::new(EFFORT_SLOTS)?;
+        let effort_scratch = EffortScratch::new_boxed()?;
         Ok(try_pin_init!(Self {
             period_us,
             epoch: Instant::now(),
@@ -160,25 +301,28 @@ impl Shared {
             rtf_in_ready <- Completion::new(),
             rtf_in <- rtf_in,
             rtf_out <- rtf_out,
+            rtf_replies <- rtf_replies,
             rtf_in_counters: RtfInCounters::new(),
             proto <- new_mutex!(proto),
+            proto_pub: SeqWords::new(Words::new()),
             data <- new_mutex!(data),
             config <- RwSem::new(ServoConfig::default(), c_str!("hap_config"), static_lock_class!()),
-            stats <- new_mutex!(stats),
+            clock_stats <- new_mutex!(Some(own_stats)),
+            stats,
             simlog <- simlog,
-            servo_working: Atomic::new(false),
-            servo_waiting: Atomic::new(false),
-            tick: Atomic::new(0),
-            servo_done_tick: Atomic::new(0),
+            effort <- effort,
+            effort_taken <- Completion::new(),
+            effort_writer <- new_mutex!(effort_scratch),
+            effort_applied: AtomicU64::new(0),
+            cycle: CycleHandshake::new(),
             ticks_not_posted: Atomic::new(0),
             expiry_ns: Atomic::new(0),
             tick_ns: Atomic::new(0),
             servo_start_ns: Atomic::new(0),
             servo_end_ns: Atomic::new(0),
-            mode: Atomic::new(0),
-            state: Atomic::new(state::RUNNING),
+            state: AtomicU8::new(ControllerState::Running.as_u8()),
             stop_request: Atomic::new(false),
-            power_request: Atomic::new(0),
+            power_request: AtomicU8::new(PowerRequest::None.as_u8()),
             motor_line: MotorLine::new(),
             last_status: Atomic::new(0),
             stopping: Atomic::new(false),
@@ -192,6 +336,7 @@ impl Shared {
             answers_dropped: Atomic::new(0),
             vpr_extrapolated: Atomic::new(0),
             config_busy: Atomic::new(0),
+            stats_read_busy: Atomic::new(0),
         }? Error))
     }
 
@@ -212,7 +357,58 @@ impl Shared {
     pub(crate) fn is_stopping(&self) -> bool {
         self.stopping.load(Relaxed)
     }
+
+    pub(crate) fn state(&self) -> ControllerState {
+        ControllerState::from_u8(self.state.load(Ordering::Acquire))
+    }
+
+    pub(crate) fn set_state(&self, s: ControllerState) {
+        self.state.store(s.as_u8(), Ordering::Release);
+    }
+
+    /// A power request (from /dev/hap_power or the client), for SERVO.
+    pub(crate) fn request_power(&self, r: PowerRequest) {
+        self.power_request.store(r.as_u8(), Ordering::Release);
+    }
+
+    /// SERVO: take the pending power request, if any.
+    pub(crate) fn take_power_request(&self) -> PowerRequest {
+        PowerRequest::from_u8(
+            self.power_request
+                .swap(PowerRequest::None.as_u8(), Ordering::AcqRel),
+        )
+    }
+
+    /// Copy the published statistics into `st` (built by `new_stats`),
+    /// through `words` (`STATS_WORDS` long). Never blocks CLOCK: retries
+    /// while a copy overlaps a write; `EBUSY` if every attempt did.
+    pub(crate) fn read_stats(&self, words: &mut [u64], st: &mut HapStats) -> Result {
+        if self.stats.read(words, STATS_READ_ATTEMPTS).is_none() {
+            self.stats_read_busy.add(1, Relaxed);
+            return Err(EBUSY);
+        }
+        st.load_words(words);
+        Ok(())
+    }
+
+    /// PROTO_IN's published counters and session.
+    pub(crate) fn proto_counters(&self) -> (ProtoCounters, u16) {
+        let mut words = [0u64; PROTO_WORDS];
+        let _ = self.proto_pub.read(&mut words, STATS_READ_ATTEMPTS);
+        let mut c = ProtoCounters::default();
+        let mut session = 0u64;
+        proto_words(&mut c, &mut session, |i, v| {
+            if let Some(w) = words.get(i) {
+                *v = *w;
+            }
+        });
+        (c, u16::try_from(session).unwrap_or(0))
+    }
 }
+
+/// Read attempts before a statistics read gives up (each copies ~3 000
+/// words; CLOCK writes a few dozen once per period).
+const STATS_READ_ATTEMPTS: usize = 1000;
 
 kernel::sync::global_lock! {
     // SAFETY: initialised in module init before any device is registered.
@@ -233,21 +429,4 @@ pub(crate) fn publish(shared: Option<Arc<Shared>>) {
 /// The running controller, or `ENODEV` between teardown steps.
 pub(crate) fn get() -> Result<Arc<Shared>> {
     SHARED.lock().as_ref().cloned().ok_or(ENODEV)
-}
-
-/// What every open file of the controller's devices holds: the running
-/// controller (open fails with `ENODEV` once it is gone) and whether the
-/// file was opened `O_NONBLOCK` (7.3's `Kiocb` does not expose the flags).
-pub(crate) struct DeviceFile {
-    pub(crate) shared: Arc<Shared>,
-    pub(crate) nonblock: bool,
-}
-
-impl DeviceFile {
-    pub(crate) fn open(file: &kernel::fs::File) -> Result<Self> {
-        Ok(DeviceFile {
-            shared: get()?,
-            nonblock: file.flags() & kernel::fs::file::flags::O_NONBLOCK != 0,
-        })
-    }
 }

@@ -7,78 +7,224 @@
 //!   gets `EINVAL` and a dmesg line with its line and column. A single line
 //!   `live fx fy fz tx ty tz` (N, N·m) sets a live effort that overrides the
 //!   sequence; `live off` ends it; `clear` unloads the sequence.
+//!   The writer parses and validates the text itself (hap-core), without any
+//!   lock of SERVO's, and hands the result over in one record of a lock-free
+//!   ring (`Shared::effort`); SERVO takes it at the top of its next cycle
+//!   without waiting, and the `write()` returns once it has (`EBUSY` if
+//!   SERVO does not take it within 100 ms, e.g. after the fail-safe).
 //! - `/dev/hap_simlog`: the position log, whole `LogRecord`s (288 bytes
 //!   each, hap-core's layout); a read returns as many whole records as fit,
 //!   blocking until one is there (`EAGAIN` with `O_NONBLOCK`, end of file
-//!   after the fail-safe). When nobody reads, the oldest records are dropped.
+//!   after the fail-safe). SERVO pushes one record per cycle without
+//!   waiting; when nobody reads and the log is full, new records are refused
+//!   (counted in `simlog.dropped`).
 
 use crate::{
+    device::{HapDevice, OpenFile},
     hap_core::{
-        effort::{parse_effort_command, EffortCommand, EffortCommandError, EFFORT_CAPACITY},
+        effort::{
+            parse_effort_command, parse_effort_sequence, EffortCommand, EffortCommandError,
+            EffortKeyframe, EffortSample, EFFORT_CAPACITY,
+        },
+        fixed::{Fx, Vec3, Wrench},
         simulator::LogRecord,
     },
-    shared::DeviceFile,
+    ring::Refused,
+    shared::{ServoData, Shared},
 };
+use core::sync::atomic::Ordering;
 use kernel::{
-    fs::{File, Kiocb},
     iov::{IovIterDest, IovIterSource},
-    miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
-    sync::atomic::{Relaxed, Release},
+    sync::{atomic::Release, Arc},
 };
 
 /// Largest effort-sequence write.
 const EFFORT_MAX_BYTES: usize = 64 * 1024;
 
-pub(crate) struct EffortDevice {
-    f: DeviceFile,
+/// Bytes of one keyframe in a handoff record.
+const KEY_BYTES: usize = 32;
+/// An effort handoff record: kind (1 byte), count or live flags (8 bytes),
+/// then the keyframes or the live wrench.
+pub(crate) const EFFORT_RECORD_BYTES: usize = 16 + EFFORT_CAPACITY * KEY_BYTES;
+
+const KIND_CLEAR: u8 = 1;
+const KIND_LIVE_OFF: u8 = 2;
+const KIND_LIVE: u8 = 3;
+const KIND_SEQUENCE: u8 = 4;
+
+fn put(out: &mut [u8], at: usize, bytes: &[u8]) {
+    if let Some(d) = at
+        .checked_add(bytes.len())
+        .and_then(|end| out.get_mut(at..end))
+    {
+        d.copy_from_slice(bytes);
+    }
 }
 
-#[vtable]
-impl MiscDevice for EffortDevice {
-    type Ptr = KBox<Self>;
+fn get<const N: usize>(rec: &[u8], at: usize) -> [u8; N] {
+    let mut b = [0u8; N];
+    if let Some(s) = at.checked_add(N).and_then(|end| rec.get(at..end)) {
+        b.copy_from_slice(s);
+    }
+    b
+}
 
-    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
-        Ok(KBox::new(
-            EffortDevice {
-                f: DeviceFile::open(file)?,
-            },
+/// Encode keyframes `keys` as a sequence record into `out`; its length.
+fn encode_sequence(keys: &[EffortKeyframe], out: &mut [u8]) -> usize {
+    put(out, 0, &[KIND_SEQUENCE]);
+    put(
+        out,
+        8,
+        &u64::try_from(keys.len()).unwrap_or(0).to_le_bytes(),
+    );
+    let mut at = 16usize;
+    for k in keys {
+        put(out, at, &k.t_ms.to_le_bytes());
+        for (j, v) in Iterator::chain(k.force_mn.iter(), k.torque_mnm.iter()).enumerate() {
+            put(
+                out,
+                at.saturating_add(4).saturating_add(j.saturating_mul(4)),
+                &v.to_le_bytes(),
+            );
+        }
+        put(out, at.saturating_add(28), &[k.flags]);
+        at = at.saturating_add(KEY_BYTES);
+    }
+    at
+}
+
+fn encode_live(s: &EffortSample, out: &mut [u8]) -> usize {
+    put(out, 0, &[KIND_LIVE, u8::from(s.dead_man), s.buttons]);
+    let w = &s.wrench;
+    let raw = [
+        w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z,
+    ];
+    for (j, v) in raw.iter().enumerate() {
+        put(
+            out,
+            j.saturating_mul(8).saturating_add(16),
+            &v.0.to_le_bytes(),
+        );
+    }
+    16 + 6 * 8
+}
+
+/// SERVO, at the top of its cycle (with `mtx_data`, which only SERVO
+/// takes): apply the effort commands handed over since its last cycle.
+/// Never waits; a few KiB copied at most per command.
+pub(crate) fn take_effort(sh: &Shared, d: &mut ServoData) {
+    let mut taken = false;
+    while let Some(n) = sh.effort.pop(&mut d.handoff) {
+        taken = true;
+        let rec = d.handoff.get(..n).unwrap_or(&[]);
+        match rec.first().copied() {
+            Some(KIND_CLEAR) => {
+                let _ = d.cycle.servo.load_effort(&[]);
+                sh.effort_loaded_cycle.store(d.cycle.servo.cycle(), Release);
+            }
+            Some(KIND_LIVE_OFF) => d.cycle.servo.set_live_effort(None),
+            Some(KIND_LIVE) => {
+                let fx = |j: usize| {
+                    Fx(i64::from_le_bytes(get(
+                        rec,
+                        j.saturating_mul(8).saturating_add(16),
+                    )))
+                };
+                let sample = EffortSample {
+                    wrench: Wrench {
+                        force: Vec3 {
+                            x: fx(0),
+                            y: fx(1),
+                            z: fx(2),
+                        },
+                        torque: Vec3 {
+                            x: fx(3),
+                            y: fx(4),
+                            z: fx(5),
+                        },
+                    },
+                    dead_man: rec.get(1).copied().unwrap_or(0) != 0,
+                    buttons: rec.get(2).copied().unwrap_or(0),
+                };
+                d.cycle.servo.set_live_effort(Some(sample));
+            }
+            Some(KIND_SEQUENCE) => {
+                let count = usize::try_from(u64::from_le_bytes(get(rec, 8))).unwrap_or(0);
+                let count = count.min(EFFORT_CAPACITY);
+                for (i, k) in d.keys.iter_mut().enumerate().take(count) {
+                    let at = 16usize.saturating_add(i.saturating_mul(KEY_BYTES));
+                    let i32_at = |j: usize| {
+                        i32::from_le_bytes(get(
+                            rec,
+                            at.saturating_add(4).saturating_add(j.saturating_mul(4)),
+                        ))
+                    };
+                    *k = EffortKeyframe {
+                        t_ms: u32::from_le_bytes(get(rec, at)),
+                        force_mn: [i32_at(0), i32_at(1), i32_at(2)],
+                        torque_mnm: [i32_at(3), i32_at(4), i32_at(5)],
+                        flags: get::<1>(rec, at.saturating_add(28))[0],
+                    };
+                }
+                let keys = d.keys.get(..count).unwrap_or(&[]);
+                d.cycle.servo.load_effort(keys);
+                sh.effort_loaded_cycle.store(d.cycle.servo.cycle(), Release);
+            }
+            _ => {}
+        }
+        sh.effort_applied.fetch_add(1, Ordering::AcqRel);
+    }
+    if taken {
+        sh.effort_taken.complete();
+    }
+}
+
+/// `/dev/hap_effort`.
+pub(crate) struct Effort;
+
+/// Effort writers wait for SERVO to take their record this long at most (ns).
+const EFFORT_TAKE_NS: i64 = 100_000_000;
+
+/// The effort writers' scratch (`Shared::effort_writer`, a lock only the
+/// writers take).
+pub(crate) struct EffortScratch {
+    keys: [EffortKeyframe; EFFORT_CAPACITY],
+    record: [u8; EFFORT_RECORD_BYTES],
+}
+
+impl EffortScratch {
+    /// Built zeroed in its allocation (~8 KiB, never on the stack).
+    pub(crate) fn new_boxed() -> Result<KBox<EffortScratch>> {
+        KBox::init(
+            init!(EffortScratch {
+                keys <- pin_init::init_zeroed(),
+                record <- pin_init::init_zeroed(),
+            }),
             GFP_KERNEL,
-        )?)
+        )
+    }
+}
+
+impl HapDevice for Effort {
+    const NAME: &'static CStr = c"hap_effort";
+
+    fn open(_sh: &Arc<Shared>) -> Result<Self> {
+        Ok(Effort)
     }
 
-    fn write_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterSource<'_>) -> Result<usize> {
-        let sh = &kiocb.file().f.shared;
+    fn write(f: &OpenFile<Self>, iov: &mut IovIterSource<'_>) -> Result<usize> {
+        let sh = &f.shared;
         let len = iov.len();
         if len == 0 || len > EFFORT_MAX_BYTES {
             return Err(EINVAL);
         }
         let mut text = KVVec::new();
         let n = iov.copy_from_iter_vec(&mut text, GFP_KERNEL)?;
-        // Parsed and validated by hap-core before mtx_data is taken: a refused
-        // write changes nothing and never holds SERVO's lock while parsing.
-        match parse_effort_command(&text, EFFORT_CAPACITY) {
-            Ok(EffortCommand::Clear) => {
-                let mut d = sh.data.lock();
-                let _ = d.cycle.servo.load_effort(&[]);
-                sh.effort_loaded_cycle.store(d.cycle.servo.cycle(), Relaxed);
-            }
-            Ok(EffortCommand::LiveOff) => sh.data.lock().cycle.servo.set_live_effort(None),
-            Ok(EffortCommand::Live(sample)) => {
-                sh.data.lock().cycle.servo.set_live_effort(Some(sample))
-            }
-            Ok(EffortCommand::Sequence { text, .. }) => {
-                let mut d = sh.data.lock();
-                let keys = d.cycle.servo.load_effort_text(text).map_err(|_| EINVAL)?;
-                let cycle = d.cycle.servo.cycle();
-                drop(d);
-                sh.effort_loaded_cycle.store(cycle, Release);
-                pr_info!(
-                    "effort sequence loaded: {} keyframes at cycle {}\n",
-                    keys,
-                    cycle
-                );
-            }
+        // Parsed and validated here, in the writer, without any lock of
+        // SERVO's: a refused write changes nothing.
+        let cmd = match parse_effort_command(&text, EFFORT_CAPACITY) {
+            Ok(c) => c,
             Err(EffortCommandError::BadLive) => return Err(EINVAL),
             Err(EffortCommandError::Sequence(e)) => {
                 pr_warn!(
@@ -89,37 +235,74 @@ impl MiscDevice for EffortDevice {
                 );
                 return Err(EINVAL);
             }
+        };
+        let loaded_keys = match &cmd {
+            EffortCommand::Sequence { keyframes, .. } => Some(*keyframes),
+            _ => None,
+        };
+        let mut guard = sh.effort_writer.lock();
+        let s = &mut **guard;
+        let rec_len = match cmd {
+            EffortCommand::Clear => {
+                put(&mut s.record, 0, &[KIND_CLEAR]);
+                1
+            }
+            EffortCommand::LiveOff => {
+                put(&mut s.record, 0, &[KIND_LIVE_OFF]);
+                1
+            }
+            EffortCommand::Live(sample) => encode_live(&sample, &mut s.record),
+            EffortCommand::Sequence { text, .. } => {
+                let keys = parse_effort_sequence(text, &mut s.keys).map_err(|_| EINVAL)?;
+                encode_sequence(s.keys.get(..keys).unwrap_or(&[]), &mut s.record)
+            }
+        };
+        let ticket = sh.effort.counts().1.saturating_add(1);
+        match sh.effort.push(s.record.get(..rec_len).unwrap_or(&[])) {
+            Ok(()) => {}
+            Err(Refused::Full) => return Err(EBUSY),
+            Err(Refused::Closed) => return Err(EPIPE),
         }
+        // Wait (the writer, not SERVO) until SERVO has taken it. The
+        // completion may hold wake-ups of records already seen taken: each
+        // wait consumes one, the deadline bounds the whole.
+        let deadline = sh.now_ns().saturating_add(EFFORT_TAKE_NS);
+        while sh.effort_applied.load(Ordering::Acquire) < ticket {
+            if sh.now_ns() > deadline || sh.is_stopping() {
+                return Err(EBUSY);
+            }
+            sh.effort_taken.wait_timeout(1);
+        }
+        if let Some(keyframes) = loaded_keys {
+            pr_info!(
+                "effort sequence loaded: {} keyframes at cycle {}\n",
+                keyframes,
+                sh.effort_loaded_cycle.load(kernel::sync::atomic::Acquire)
+            );
+        }
+        drop(guard);
         Ok(n)
     }
 }
 
-pub(crate) struct SimLogDevice {
-    f: DeviceFile,
-}
+/// `/dev/hap_simlog`.
+pub(crate) struct SimLog;
 
-#[vtable]
-impl MiscDevice for SimLogDevice {
-    type Ptr = KBox<Self>;
+impl HapDevice for SimLog {
+    const NAME: &'static CStr = c"hap_simlog";
 
-    fn open(file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
-        Ok(KBox::new(
-            SimLogDevice {
-                f: DeviceFile::open(file)?,
-            },
-            GFP_KERNEL,
-        )?)
+    fn open(_sh: &Arc<Shared>) -> Result<Self> {
+        Ok(SimLog)
     }
 
-    fn read_iter(kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
-        let me = kiocb.file();
-        let sh = &me.f.shared;
+    fn read(f: &OpenFile<Self>, _pos: &mut i64, iov: &mut IovIterDest<'_>) -> Result<usize> {
+        let sh = &f.shared;
         if iov.len() < LogRecord::SIZE {
             return Err(EINVAL);
         }
         // One record, waiting for it if need be; then whatever else fits.
         let mut rec = [0u8; LogRecord::SIZE];
-        if sh.simlog.pop_wait(&mut rec, me.f.nonblock)? == 0 {
+        if sh.simlog.pop_wait(&mut rec, f.nonblock)? == 0 {
             return Ok(0);
         }
         let mut total = 0usize;
@@ -127,8 +310,8 @@ impl MiscDevice for SimLogDevice {
             if iov.copy_to_iter(&rec) != LogRecord::SIZE {
                 return if total > 0 { Ok(total) } else { Err(EFAULT) };
             }
-            total += LogRecord::SIZE;
-            if iov.len() < LogRecord::SIZE || sh.simlog.pop(&mut rec).is_none() {
+            total = total.saturating_add(LogRecord::SIZE);
+            if iov.len() < LogRecord::SIZE || sh.simlog.pop_serialised(&mut rec).is_none() {
                 return Ok(total);
             }
         }

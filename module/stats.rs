@@ -6,28 +6,33 @@
 //! module's effective parameters). See Documentation/timing.md.
 //!
 //! `/dev/hap_hist`: the 1 µs histograms of the three timing series
-//! (wake-up, execution, period jitter), copied at open under the stats lock
-//! and rendered by hap-core outside it (`render_histograms`).
+//! (wake-up, execution, period jitter), rendered by hap-core
+//! (`render_histograms`).
+//!
+//! Both copy CLOCK's published statistics (a seqcount over `u64` words,
+//! `Shared::read_stats`) into their own allocation and render from the
+//! copy: no lock is taken, CLOCK never waits for a reader (a copy that
+//! overlaps CLOCK's write is retried by the reader). PROTO_IN's counters
+//! come from its own publication, never from `mtx_proto`.
 
 use crate::{
+    device::{HapDevice, OpenFile},
     hap_core::{
         clock::MISS_LIMIT,
         proto_in::Reject,
         stats::{
-            render_histograms, render_summary, HistogramView, SliceWriter, HIST_BUCKETS,
-            HIST_RENDER_MAX, HIST_SERIES,
+            render_histograms, render_summary, HapStats, HistogramView, SliceWriter,
+            HIST_RENDER_MAX, STATS_WORDS,
         },
     },
     rtf::RTF_FRAMES,
-    shared::{self, state, Shared, NEVER},
+    shared::{new_stats, Shared, NEVER},
 };
 use core::fmt::Write;
 use kernel::{
-    fs::{File, Kiocb},
     iov::IovIterDest,
-    miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
-    sync::atomic::{Acquire, Relaxed},
+    sync::{atomic::Relaxed, Arc},
 };
 
 /// A fixed-capacity text buffer for `core::fmt` (no allocation while formatting).
@@ -52,7 +57,7 @@ impl<const N: usize> TextBuf<N> {
 impl<const N: usize> Write for TextBuf<N> {
     fn write_str(&mut self, s: &str) -> core::fmt::Result {
         let end = self.len.saturating_add(s.len()).min(N);
-        let n = end - self.len;
+        let n = end.saturating_sub(self.len);
         if let (Some(dst), Some(src)) = (self.buf.get_mut(self.len..end), s.as_bytes().get(..n)) {
             dst.copy_from_slice(src);
             self.len = end;
@@ -67,6 +72,7 @@ impl<const N: usize> Write for TextBuf<N> {
 
 const STATS_TEXT_MAX: usize = 8192;
 
+/// `/dev/hap_stats`: the text rendered at open.
 pub(crate) struct StatsDevice {
     text: KVVec<u8>,
 }
@@ -75,27 +81,32 @@ fn cycle_or_never(v: u64) -> i64 {
     if v == NEVER {
         -1
     } else {
-        v as i64
+        i64::try_from(v).unwrap_or(i64::MAX)
     }
 }
 
-fn render(sh: &Shared, out: &mut [u8]) -> usize {
-    let (proto_counters, session) = {
-        let p = sh.proto.lock();
-        (*p.counters(), p.session())
-    };
-    let (rtf_out_len, _, rtf_out_dropped) = sh.rtf_out.counts();
+/// A copy of CLOCK's published statistics, in its own allocation.
+fn copy_stats(sh: &Shared) -> Result<KBox<HapStats>> {
+    let mut words = KVVec::<u64>::with_capacity(STATS_WORDS, GFP_KERNEL)?;
+    words.resize(STATS_WORDS, 0, GFP_KERNEL)?;
+    let mut st = new_stats(sh.period_us)?;
+    sh.read_stats(&mut words, &mut st)?;
+    Ok(st)
+}
+
+fn render(sh: &Shared, st: &mut HapStats, out: &mut [u8]) -> usize {
+    let (proto_counters, session) = sh.proto_counters();
+    let (rtf_out_len, _, _) = sh.rtf_out.counts();
+    let (replies_len, _, _) = sh.rtf_replies.counts();
     let (rtf_in_len, _, _) = sh.rtf_in.counts();
+    let (simlog_len, simlog_pushed, simlog_dropped) = sh.simlog.counts();
     let summary = {
-        let mut st = sh.stats.lock();
         let c = &mut st.counters;
         c.frames_in = proto_counters.accepted;
         c.frames_out = sh.answers_sent.load(Relaxed);
         c.frames_rejected = proto_counters.decode_rejects;
-        c.answers_dropped = sh
-            .answers_dropped
-            .load(Relaxed)
-            .saturating_add(rtf_out_dropped);
+        // Frames a full rtf_out refused: counted by SERVO and PROTO_IN.
+        c.answers_dropped = sh.answers_dropped.load(Relaxed);
         c.vpr_extrapolated = sh.vpr_extrapolated.load(Relaxed);
         st.summary()
     };
@@ -104,22 +115,14 @@ fn render(sh: &Shared, out: &mut [u8]) -> usize {
         return n;
     };
     let mut w = SliceWriter::new(rest);
-    let st = sh.state.load(Acquire) as usize;
-    let mode = match sh.mode.load(Acquire) {
-        0 => "normal",
-        1 => "degraded",
-        _ => "fail_safe",
-    };
+    let state = sh.state();
+    let mode = sh.cycle.mode().name();
     let status = crate::io::arm_status(sh);
     let _ = (|| -> core::fmt::Result {
-        writeln!(
-            w,
-            "state: {}",
-            state::NAMES.get(st).copied().unwrap_or("unknown")
-        )?;
+        writeln!(w, "state: {}", state.name())?;
         writeln!(w, "mode: {mode}")?;
         writeln!(w, "miss_limit: {MISS_LIMIT}")?;
-        writeln!(w, "timer_ticks: {}", sh.tick.load(Relaxed))?;
+        writeln!(w, "timer_ticks: {}", sh.cycle.tick())?;
         writeln!(w, "ticks_not_posted: {}", sh.ticks_not_posted.load(Relaxed))?;
         writeln!(w, "status: {status:#06x}")?;
         writeln!(
@@ -165,6 +168,11 @@ fn render(sh: &Shared, out: &mut [u8]) -> usize {
         writeln!(w, "rtf_in.queued: {rtf_in_len}")?;
         writeln!(w, "rtf_out.queued: {rtf_out_len}")?;
         writeln!(w, "rtf_out.capacity: {RTF_FRAMES}")?;
+        writeln!(w, "rtf_out.replies_queued: {replies_len}")?;
+        writeln!(w, "simlog.queued: {simlog_len}")?;
+        writeln!(w, "simlog.pushed: {simlog_pushed}")?;
+        writeln!(w, "simlog.dropped: {simlog_dropped}")?;
+        writeln!(w, "stats_read_busy: {}", sh.stats_read_busy.load(Relaxed))?;
         writeln!(w, "answers_sent: {}", sh.answers_sent.load(Relaxed))?;
         writeln!(
             w,
@@ -188,14 +196,18 @@ fn render(sh: &Shared, out: &mut [u8]) -> usize {
             sh.fault_overruns.load(Relaxed)
         )?;
         let e = sh.expiry_ns.load(Relaxed);
-        writeln!(w, "last.timer_late_ns: {}", sh.tick_ns.load(Relaxed) - e)?;
+        writeln!(
+            w,
+            "last.timer_late_ns: {}",
+            sh.tick_ns.load(Relaxed).saturating_sub(e)
+        )?;
         writeln!(
             w,
             "hrtimer_resolution_ns: {}",
             crate::clock::hrtimer_resolution_ns()
         )
     })();
-    n + w.len()
+    n.saturating_add(w.len())
 }
 
 /// The text a read-only device shows for one open: `render` writes at most
@@ -208,58 +220,40 @@ fn snapshot(max: usize, render: impl FnOnce(&mut [u8]) -> usize) -> Result<KVVec
     Ok(text)
 }
 
-#[vtable]
-impl MiscDevice for StatsDevice {
-    type Ptr = KBox<Self>;
+impl HapDevice for StatsDevice {
+    const NAME: &'static CStr = c"hap_stats";
 
-    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
-        let sh = shared::get()?;
-        let text = snapshot(STATS_TEXT_MAX, |out| render(&sh, out))?;
-        Ok(KBox::new(StatsDevice { text }, GFP_KERNEL)?)
+    fn open(sh: &Arc<Shared>) -> Result<Self> {
+        let mut st = copy_stats(sh)?;
+        let text = snapshot(STATS_TEXT_MAX, |out| render(sh, &mut st, out))?;
+        Ok(StatsDevice { text })
     }
 
-    fn read_iter(mut kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
-        let me = kiocb.file();
-        iov.simple_read_from_buffer(kiocb.ki_pos_mut(), &me.text)
+    fn read(f: &OpenFile<Self>, pos: &mut i64, iov: &mut IovIterDest<'_>) -> Result<usize> {
+        iov.simple_read_from_buffer(pos, &f.dev.text)
     }
 }
 
+/// `/dev/hap_hist`: the text rendered at open.
 pub(crate) struct HistDevice {
     text: KVVec<u8>,
 }
 
-#[vtable]
-impl MiscDevice for HistDevice {
-    type Ptr = KBox<Self>;
+impl HapDevice for HistDevice {
+    const NAME: &'static CStr = c"hap_hist";
 
-    fn open(_file: &File, _misc: &MiscDeviceRegistration<Self>) -> Result<KBox<Self>> {
-        let sh = shared::get()?;
-        // Allocate first; under the lock only copy (CLOCK takes this lock
-        // once per period: rendering ~100 KB there would hold it up).
-        let mut buckets =
-            KVVec::<u32>::with_capacity(HIST_SERIES.len() * HIST_BUCKETS, GFP_KERNEL)?;
-        let mut overflow = [0u64; HIST_SERIES.len()];
-        {
-            let st = sh.stats.lock();
-            for ((_, h), o) in st.histograms().iter().zip(overflow.iter_mut()) {
-                buckets.extend_from_slice(h.buckets(), GFP_KERNEL)?;
-                *o = h.overflow();
-            }
-        }
-        let view = |i: usize| HistogramView {
-            name: HIST_SERIES.get(i).copied().unwrap_or(""),
-            buckets: buckets
-                .get(i * HIST_BUCKETS..(i + 1) * HIST_BUCKETS)
-                .unwrap_or(&[]),
-            overflow: overflow.get(i).copied().unwrap_or(0),
-        };
-        let series = [view(0), view(1), view(2)];
+    fn open(sh: &Arc<Shared>) -> Result<Self> {
+        let st = copy_stats(sh)?;
+        let series = st.histograms().map(|(name, h)| HistogramView {
+            name,
+            buckets: h.buckets(),
+            overflow: h.overflow(),
+        });
         let text = snapshot(HIST_RENDER_MAX, |out| render_histograms(&series, out).len)?;
-        Ok(KBox::new(HistDevice { text }, GFP_KERNEL)?)
+        Ok(HistDevice { text })
     }
 
-    fn read_iter(mut kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
-        let me = kiocb.file();
-        iov.simple_read_from_buffer(kiocb.ki_pos_mut(), &me.text)
+    fn read(f: &OpenFile<Self>, pos: &mut i64, iov: &mut IovIterDest<'_>) -> Result<usize> {
+        iov.simple_read_from_buffer(pos, &f.dev.text)
     }
 }

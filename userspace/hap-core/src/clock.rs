@@ -84,6 +84,25 @@ impl Mode {
             Mode::FailSafe => "fail_safe",
         }
     }
+
+    /// The mode as it crosses an atomic (`CycleHandshake`); [`Mode::from_u8`]
+    /// is its inverse.
+    pub const fn as_u8(self) -> u8 {
+        match self {
+            Mode::Normal => 0,
+            Mode::Degraded => 1,
+            Mode::FailSafe => 2,
+        }
+    }
+
+    /// The mode stored as `v`; unknown values read as `FailSafe` (the safe side).
+    pub const fn from_u8(v: u8) -> Mode {
+        match v {
+            0 => Mode::Normal,
+            1 => Mode::Degraded,
+            _ => Mode::FailSafe,
+        }
+    }
 }
 
 /// Why fail-safe was engaged.

@@ -51,6 +51,27 @@ pub enum PowerRequest {
     Off,
 }
 
+impl PowerRequest {
+    /// The request as it crosses an atomic (a device write → SERVO);
+    /// [`PowerRequest::from_u8`] is its inverse.
+    pub const fn as_u8(self) -> u8 {
+        match self {
+            PowerRequest::None => 0,
+            PowerRequest::On => 1,
+            PowerRequest::Off => 2,
+        }
+    }
+
+    /// The request stored as `v`; unknown values read as `None`.
+    pub const fn from_u8(v: u8) -> PowerRequest {
+        match v {
+            1 => PowerRequest::On,
+            2 => PowerRequest::Off,
+            _ => PowerRequest::None,
+        }
+    }
+}
+
 /// Per-cycle inputs from outside the servo (device writes in the kernel).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ServoInputs {

@@ -10,8 +10,17 @@
 //! - `jitter`: |actual period − nominal period| of CLOCK's tops, with the
 //!   signed extremes kept apart.
 //!
-//! Size: one [`TimingStat`] is ~4 KiB, [`HapStats`] ~12.2 KiB — allocate it
-//! (kernel: in the module's state, not on the stack).
+//! Counters and histogram buckets are `u64`: at 1 kHz a u32 bucket would
+//! saturate after ~49.7 days.
+//!
+//! Size: one [`TimingStat`] is ~8 KiB, [`HapStats`] ~24.3 KiB — allocate it
+//! (kernel: built in place in its allocation, never on the stack; see
+//! [`HapStats::reset`]).
+//!
+//! Publication: CLOCK records into its own `HapStats` and publishes it as
+//! `STATS_WORDS` `u64` words ([`HapStats::visit_words`]) through a
+//! [`crate::seqlock::SeqWords`]; readers copy the words and decode them into
+//! their own `HapStats` with the same visitor.
 //!
 //! Text format (one `key: value` per line, `#` lines are comments,
 //! values are decimal integers; see [`render_summary`]).
@@ -33,9 +42,12 @@ pub const RENDER_MAX: usize = 4096;
 /// 1 µs-bucket histogram with overflow count.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Histogram {
-    buckets: [u32; HIST_BUCKETS],
+    buckets: [u64; HIST_BUCKETS],
     overflow: u64,
     count: u64,
+    /// Bucket of the last value recorded (`HIST_BUCKETS`: none or overflow),
+    /// for publishing only what changed.
+    last: u64,
 }
 
 impl Default for Histogram {
@@ -50,6 +62,7 @@ impl Histogram {
             buckets: [0; HIST_BUCKETS],
             overflow: 0,
             count: 0,
+            last: HIST_BUCKETS as u64,
         }
     }
 
@@ -60,8 +73,14 @@ impl Histogram {
             .ok()
             .and_then(|i| self.buckets.get_mut(i));
         match slot {
-            Some(b) => *b = b.saturating_add(1),
-            None => self.overflow = self.overflow.saturating_add(1),
+            Some(b) => {
+                *b = b.saturating_add(1);
+                self.last = us;
+            }
+            None => {
+                self.overflow = self.overflow.saturating_add(1);
+                self.last = HIST_BUCKETS as u64;
+            }
         }
     }
 
@@ -76,12 +95,12 @@ impl Histogram {
     }
 
     /// Count of bucket `i` (0 if out of range).
-    pub fn bucket(&self, i: usize) -> u32 {
+    pub fn bucket(&self, i: usize) -> u64 {
         self.buckets.get(i).copied().unwrap_or(0)
     }
 
     /// All `HIST_BUCKETS` buckets (bucket `i`: values in [i, i+1) µs).
-    pub fn buckets(&self) -> &[u32] {
+    pub fn buckets(&self) -> &[u64] {
         &self.buckets
     }
 
@@ -96,7 +115,7 @@ impl Histogram {
         let rank = prod.div_ceil(den).max(1);
         let mut cum: u64 = 0;
         for (i, &b) in self.buckets.iter().enumerate() {
-            cum = cum.saturating_add(u64::from(b));
+            cum = cum.saturating_add(b);
             if cum >= rank {
                 return i as u32;
             }
@@ -104,8 +123,12 @@ impl Histogram {
         HIST_BUCKETS as u32
     }
 
+    /// Empty it, in place (no temporary on the stack).
     pub fn clear(&mut self) {
-        *self = Self::new();
+        self.buckets.fill(0);
+        self.overflow = 0;
+        self.count = 0;
+        self.last = HIST_BUCKETS as u64;
     }
 }
 
@@ -196,8 +219,13 @@ impl TimingStat {
         }
     }
 
+    /// Empty it, in place.
     pub fn clear(&mut self) {
-        *self = Self::new();
+        self.min_ns = u64::MAX;
+        self.max_ns = 0;
+        self.sum_ns = 0;
+        self.last_ns = 0;
+        self.hist.clear();
     }
 }
 
@@ -205,7 +233,9 @@ impl TimingStat {
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct PeriodJitter {
     nominal_ns: u64,
-    last_top_ns: Option<u64>,
+    /// The previous top (valid once `has_last_top`).
+    last_top_ns: u64,
+    has_last_top: bool,
     min_ns: i64,
     max_ns: i64,
     abs: TimingStat,
@@ -215,7 +245,8 @@ impl PeriodJitter {
     pub const fn new(nominal_ns: u64) -> Self {
         PeriodJitter {
             nominal_ns,
-            last_top_ns: None,
+            last_top_ns: 0,
+            has_last_top: false,
             min_ns: 0,
             max_ns: 0,
             abs: TimingStat::new(),
@@ -225,7 +256,11 @@ impl PeriodJitter {
     /// A CLOCK top at monotonic time `now_ns`. The first top only sets the
     /// reference. Returns the signed jitter (actual − nominal period, ns).
     pub fn top(&mut self, now_ns: u64) -> Option<i64> {
-        let last = self.last_top_ns.replace(now_ns)?;
+        let last = self.last_top_ns;
+        self.last_top_ns = now_ns;
+        if !core::mem::replace(&mut self.has_last_top, true) {
+            return None;
+        }
         let actual = now_ns.wrapping_sub(last);
         let j = i64::try_from(actual)
             .unwrap_or(i64::MAX)
@@ -541,8 +576,8 @@ pub const HIST_SERIES: [&str; 3] = ["wakeup", "exec", "jitter"];
 
 /// A buffer big enough for [`render_histograms`] of [`HIST_SERIES`]: every
 /// bucket of every series non-zero, each line at most
-/// `"jitter.hist_us.999: 4294967295\n"` (31 bytes), plus headers.
-pub const HIST_RENDER_MAX: usize = HIST_SERIES.len() * (HIST_BUCKETS * 32 + 128) + 256;
+/// `"jitter.hist_us.999: 18446744073709551615\n"` (41 bytes), plus headers.
+pub const HIST_RENDER_MAX: usize = HIST_SERIES.len() * (HIST_BUCKETS * 42 + 128) + 256;
 
 impl HapStats {
     /// The histograms of the three series, named as in [`HIST_SERIES`]
@@ -556,12 +591,159 @@ impl HapStats {
     }
 }
 
+/// Which histogram buckets [`HapStats::visit_words`] visits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WordSet {
+    /// Every word.
+    All,
+    /// Every scalar, and of each histogram only the bucket of the last value
+    /// recorded: what one `record_cycle` + `record_verdict` can change.
+    Recent,
+}
+
+/// Words of one [`TimingStat`]: min, max, sum, last, count, overflow, last
+/// bucket, then the buckets.
+const TIMING_WORDS: usize = 7 + HIST_BUCKETS;
+/// Words of [`Counters`].
+const COUNTER_WORDS: usize = 9 + DecodeError::COUNT;
+/// Words of [`HapStats`] as [`HapStats::visit_words`] lays them out.
+pub const STATS_WORDS: usize = 1 + COUNTER_WORDS + 2 * TIMING_WORDS + 5 + TIMING_WORDS;
+
+/// Walks the word layout, handing each visited word to `f` by index.
+struct Visitor<F> {
+    next: usize,
+    set: WordSet,
+    f: F,
+}
+
+impl<F: FnMut(usize, &mut u64)> Visitor<F> {
+    fn word(&mut self, v: &mut u64) {
+        (self.f)(self.next, v);
+        self.next = self.next.saturating_add(1);
+    }
+
+    fn u32(&mut self, v: &mut u32) {
+        let mut w = u64::from(*v);
+        self.word(&mut w);
+        *v = u32::try_from(w).unwrap_or(u32::MAX);
+    }
+
+    fn i64(&mut self, v: &mut i64) {
+        let mut w = *v as u64;
+        self.word(&mut w);
+        *v = w as i64;
+    }
+
+    fn bool(&mut self, v: &mut bool) {
+        let mut w = u64::from(*v);
+        self.word(&mut w);
+        *v = w != 0;
+    }
+
+    fn timing(&mut self, t: &mut TimingStat) {
+        self.word(&mut t.min_ns);
+        self.word(&mut t.max_ns);
+        self.word(&mut t.sum_ns);
+        self.word(&mut t.last_ns);
+        let h = &mut t.hist;
+        self.word(&mut h.count);
+        self.word(&mut h.overflow);
+        self.word(&mut h.last);
+        let base = self.next;
+        match self.set {
+            WordSet::All => {
+                for b in h.buckets.iter_mut() {
+                    self.word(b);
+                }
+            }
+            WordSet::Recent => {
+                let i = usize::try_from(h.last).unwrap_or(HIST_BUCKETS);
+                if let Some(b) = h.buckets.get_mut(i) {
+                    self.next = base.saturating_add(i);
+                    self.word(b);
+                }
+            }
+        }
+        self.next = base.saturating_add(HIST_BUCKETS);
+    }
+}
+
+impl HapStats {
+    /// Reset to [`HapStats::new`]`(period_us)` in place: for a `HapStats`
+    /// built in its allocation (all-zero memory is a valid `HapStats`: every
+    /// field is an integer, a bool or an array of them), without the ~24 KiB
+    /// temporary that `new` would put on the stack.
+    pub fn reset(&mut self, period_us: u32) {
+        self.period_us = period_us;
+        self.wakeup.clear();
+        self.exec.clear();
+        let j = &mut self.jitter;
+        j.nominal_ns = u64::from(period_us).saturating_mul(1_000);
+        j.last_top_ns = 0;
+        j.has_last_top = false;
+        j.min_ns = 0;
+        j.max_ns = 0;
+        j.abs.clear();
+        self.counters = Counters::default();
+    }
+
+    /// Visit the words of the published layout (`STATS_WORDS` of them, word
+    /// `i` handed to `f` as `(i, &mut value)`): reading `*value` encodes,
+    /// writing it decodes. With [`WordSet::Recent`] only what the last
+    /// record can have changed is visited.
+    pub fn visit_words(&mut self, set: WordSet, f: impl FnMut(usize, &mut u64)) {
+        let mut v = Visitor { next: 0, set, f };
+        v.u32(&mut self.period_us);
+        let c = &mut self.counters;
+        v.word(&mut c.cycles);
+        v.word(&mut c.misses);
+        v.word(&mut c.max_consecutive_misses);
+        v.word(&mut c.degraded_cycles);
+        v.word(&mut c.fail_safe);
+        v.word(&mut c.frames_in);
+        v.word(&mut c.frames_out);
+        for r in c.frames_rejected.iter_mut() {
+            v.word(r);
+        }
+        v.word(&mut c.answers_dropped);
+        v.word(&mut c.vpr_extrapolated);
+        v.timing(&mut self.wakeup);
+        v.timing(&mut self.exec);
+        let j = &mut self.jitter;
+        v.word(&mut j.nominal_ns);
+        v.word(&mut j.last_top_ns);
+        v.bool(&mut j.has_last_top);
+        v.i64(&mut j.min_ns);
+        v.i64(&mut j.max_ns);
+        v.timing(&mut j.abs);
+    }
+
+    /// Encode every word into `out` (`STATS_WORDS` long; extra words are
+    /// left alone, missing ones skipped).
+    pub fn to_words(&mut self, out: &mut [u64]) {
+        self.visit_words(WordSet::All, |i, w| {
+            if let Some(o) = out.get_mut(i) {
+                *o = *w;
+            }
+        });
+    }
+
+    /// Decode from `words` (as [`HapStats::to_words`] wrote them).
+    pub fn load_words(&mut self, words: &[u64]) {
+        self.visit_words(WordSet::All, |i, w| {
+            if let Some(v) = words.get(i) {
+                *w = *v;
+            }
+        });
+    }
+}
+
 /// One series for [`render_histograms`]: its name, its `HIST_BUCKETS`
 /// buckets (copied out of [`HapStats`] under its lock) and its overflow.
 #[derive(Clone, Copy, Debug)]
 pub struct HistogramView<'a> {
     pub name: &'a str,
-    pub buckets: &'a [u32],
+    pub buckets: &'a [u64],
     pub overflow: u64,
 }
 
@@ -576,7 +758,7 @@ fn write_histograms(w: &mut SliceWriter<'_>, series: &[HistogramView<'_>]) -> fm
         for (i, &n) in s.buckets.iter().enumerate() {
             if n != 0 {
                 writeln!(w, "{}.hist_us.{i}: {n}", s.name)?;
-                total = total.saturating_add(u64::from(n));
+                total = total.saturating_add(n);
             }
         }
         writeln!(w, "{}.hist_overflow: {}", s.name, s.overflow)?;
@@ -813,7 +995,7 @@ mod tests {
 
     #[test]
     fn histograms_worst_case_fits_hist_render_max() {
-        let full = [u32::MAX; HIST_BUCKETS];
+        let full = [u64::MAX; HIST_BUCKETS];
         let series: Vec<HistogramView<'_>> = HIST_SERIES
             .iter()
             .map(|name| HistogramView {
@@ -968,7 +1150,99 @@ mod tests {
     }
 
     #[test]
+    fn buckets_are_u64_and_do_not_saturate_at_u32() {
+        let mut h = Histogram::new();
+        h.buckets[3] = u64::from(u32::MAX);
+        h.count = u64::from(u32::MAX);
+        h.record_us(3);
+        assert_eq!(h.bucket(3), u64::from(u32::MAX) + 1);
+        assert_eq!(h.quantile_us(P999, PPM), 3);
+    }
+
+    fn busy_stats() -> HapStats {
+        let mut st = HapStats::new(250);
+        for i in 0..500i64 {
+            let e = i * 250_000;
+            st.record_cycle(
+                e,
+                e + 900 + i,
+                e + 3_000 + 7 * i,
+                e + 40_000 + 11 * i,
+                i % 7 != 0,
+            );
+            st.record_verdict(&Verdict::Good {
+                mode: super::super::clock::Mode::Normal,
+            });
+        }
+        st.record_cycle(1 << 40, (1 << 40) + 5, (1 << 40) + 2_000_000, 0, false);
+        st.record_reject(DecodeError::BadCrc);
+        st.counters.vpr_extrapolated = 12;
+        st
+    }
+
+    #[test]
+    fn words_round_trip_every_field() {
+        let mut st = busy_stats();
+        let mut words = vec![0u64; STATS_WORDS];
+        st.to_words(&mut words);
+        let mut n = 0;
+        st.visit_words(WordSet::All, |i, _| {
+            assert_eq!(i, n);
+            n += 1;
+        });
+        assert_eq!(n, STATS_WORDS);
+        let mut back = HapStats::new(1);
+        back.load_words(&words);
+        assert_eq!(back, st);
+        assert_eq!(back.summary(), st.summary());
+    }
+
+    #[test]
+    fn recent_words_are_what_one_record_changes() {
+        // Publish everything once, then after each record only the recent
+        // words: the published copy always decodes to the writer's state.
+        let mut st = HapStats::new(1000);
+        let mut published = vec![0u64; STATS_WORDS];
+        st.to_words(&mut published);
+        for i in 0..3000i64 {
+            let e = i * 1_000_000;
+            let late = (i * 7919) % 1_500_000;
+            st.record_cycle(e, e + late / 3, e + late, e + late + 20_000 + i, i % 5 != 0);
+            st.record_verdict(&if i % 11 == 0 {
+                Verdict::Miss { consecutive: 1 }
+            } else {
+                Verdict::Good {
+                    mode: super::super::clock::Mode::Normal,
+                }
+            });
+            st.visit_words(WordSet::Recent, |k, w| published[k] = *w);
+            if i % 97 == 0 {
+                let mut back = HapStats::new(1);
+                back.load_words(&published);
+                assert_eq!(back, st, "after record {i}");
+            }
+        }
+        let mut back = HapStats::new(1);
+        back.load_words(&published);
+        assert_eq!(back, st);
+    }
+
+    #[test]
+    fn reset_in_place_equals_new() {
+        let mut st = busy_stats();
+        st.reset(777);
+        assert_eq!(st, HapStats::new(777));
+        // From all-zero memory (how the kernel allocates it).
+        let mut words = vec![0u64; STATS_WORDS];
+        let mut z = HapStats::new(5);
+        z.load_words(&words);
+        z.reset(250);
+        assert_eq!(z, HapStats::new(250));
+        z.to_words(&mut words);
+    }
+
+    #[test]
     fn struct_size() {
-        assert!(core::mem::size_of::<HapStats>() < 13 * 1024);
+        assert!(core::mem::size_of::<HapStats>() < 25 * 1024);
     }
 }
