@@ -7,7 +7,7 @@
 //!   barrier (rendezvous: a SERVO still busy gets no second cycle queued; the
 //!   tick is counted as not posted).
 //! - The check timer fires at 3/4 of each period and wakes the CLOCK thread
-//!   (SCHED_FIFO 99, above SERVO), which asks hap-core's `Supervisor` whether
+//!   (SCHED_FIFO 90, above SERVO), which asks hap-core's `Supervisor` whether
 //!   SERVO finished, updates the statistics, sets SERVO's mode (main or
 //!   degraded), and on a stop request or exactly 5 consecutive misses runs
 //!   the fail-safe in `FAIL_SAFE_SEQUENCE` order, then exits.
@@ -131,15 +131,7 @@ impl_has_hr_timer! {
     }
 }
 
-/// The hrtimer resolution in ns: 1 once the kernel runs high-resolution
-/// timers, the tick length (1 ms at HZ=1000) before the switch (early boot,
-/// or no high-resolution clock event device).
-pub(crate) fn hrtimer_resolution_ns() -> u32 {
-    // SAFETY: `hrtimer_resolution` is an exported, naturally aligned `unsigned
-    // int` that the kernel only writes when it switches timer modes; a racy
-    // read gives the old or the new value, both meaningful.
-    unsafe { core::ptr::read_volatile(&raw const kernel::bindings::hrtimer_resolution) }
-}
+pub(crate) use crate::kconfig::hrtimer_resolution_ns;
 
 pub(crate) fn mode_to_u32(m: Mode) -> u32 {
     match m {
@@ -150,10 +142,10 @@ pub(crate) fn mode_to_u32(m: Mode) -> u32 {
 }
 
 /// CLOCK's thread body.
-pub(crate) fn clock_main(sh: &Shared) {
+pub(crate) fn clock_main(kt: &crate::kthread::CurrentKThread, sh: &Shared) {
     let mut sup = Supervisor::new();
     let mut last_tick_seen = 0u64;
-    while !crate::kthread::should_stop() && !sh.is_stopping() {
+    while !kt.should_stop() && !sh.is_stopping() {
         if sh.check_due.wait_timeout(100) == Wait::TimedOut {
             continue;
         }

@@ -13,11 +13,7 @@
 //! produce now), six joint torques each in µN·m.
 
 use crate::{
-    hap_core::{
-        fixed::Joints,
-        io::Gate,
-        vp::status,
-    },
+    hap_core::{fixed::Joints, io::Gate, vp::status},
     shared::{DeviceFile, Shared},
 };
 use core::fmt::Write;
@@ -103,6 +99,6 @@ impl MiscDevice for PowerDevice {
         let _ = write!(text, " applied=");
         let _ = write_torques(&mut text, &line.applied());
         let _ = writeln!(text);
-        iov.simple_read_from_buffer(kiocb.ki_pos_mut(), text.as_bytes())
+        crate::uaccess::read_at(iov, kiocb.ki_pos_mut(), text.as_bytes())
     }
 }

@@ -13,14 +13,15 @@
 use crate::{
     completion::Wait,
     hap_core::servo::{PowerRequest, ServoInputs, ServoMode},
-    kthread, proto_synchro,
+    kthread::CurrentKThread,
+    proto_synchro,
     shared::{ServoData, Shared},
 };
 use kernel::sync::atomic::{Acquire, Relaxed, Release};
 
 /// SERVO's thread body.
-pub(crate) fn servo_main(sh: &Shared) {
-    while !kthread::should_stop() && !sh.is_stopping() {
+pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Shared) {
+    while !kt.should_stop() && !sh.is_stopping() {
         sh.servo_waiting.store(true, Release);
         let w = sh.cycle_start.wait_timeout(100);
         sh.servo_waiting.store(false, Release);
@@ -36,7 +37,7 @@ pub(crate) fn servo_main(sh: &Shared) {
         sh.servo_start_ns.store(sh.now_ns(), Release);
 
         let mut data = sh.data.lock();
-        if inject_fault(sh) == Injected::Hung {
+        if inject_fault(kt, sh) == Injected::Hung {
             // The hung SERVO is released only by rmmod: it never finishes.
             break;
         }
@@ -114,9 +115,9 @@ enum Injected {
 /// the line. `overrun N`: stay busy past the 3/4 check, then run the cycle
 /// late; `hang`: never finish, blocked (as in a deadlock) until rmmod stops
 /// the thread.
-fn inject_fault(sh: &Shared) -> Injected {
+fn inject_fault(kt: &CurrentKThread, sh: &Shared) -> Injected {
     if sh.fault_hang.load(Acquire) {
-        while !kthread::should_stop() {
+        while !kt.should_stop() {
             kernel::time::delay::fsleep(kernel::time::Delta::from_millis(1));
         }
         return Injected::Hung;
