@@ -198,10 +198,7 @@ impl kernel::Module for HapticCtrl {
             return Err(EINVAL);
         }
         let allow_non_rt = module_parameters::allow_non_rt.value();
-        kconfig::check(period_us, allow_non_rt).map_err(kconfig::Unfit::report)?;
-        if !cfg!(CONFIG_PREEMPT_RT) {
-            pr_warn!("kernel without CONFIG_PREEMPT_RT, loading because allow_non_rt=1: no latency bound\n");
-        }
+        kconfig::check(period_us, allow_non_rt)?;
         shared::init_global();
         let shared = Arc::pin_init(Shared::new(period_us)?, GFP_KERNEL)
             .inspect_err(|e| pr_err!("cannot create the channels: {:?}\n", e))?;

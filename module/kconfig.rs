@@ -1,13 +1,15 @@
 // SPDX-License-Identifier: GPL-2.0
 
 //! What the module needs from the kernel's configuration, checked once at
-//! load: high-resolution timers (CONFIG_HIGH_RES_TIMERS, active) and a fully
-//! preemptible kernel (CONFIG_PREEMPT_RT: sleeping locks with priority
-//! inheritance, threaded interrupts). Without PREEMPT_RT a reader of a module
-//! device that holds a mutex SERVO needs is not boosted, and the cycle's
-//! wake-up latency has no bound; loading there anyway is an explicit choice
-//! (`allow_non_rt=1`), for development only.
+//! load (hap-core's `platform::check` decides): high-resolution timers
+//! (CONFIG_HIGH_RES_TIMERS, active) and a fully preemptible kernel
+//! (CONFIG_PREEMPT_RT: sleeping locks with priority inheritance, threaded
+//! interrupts). Without PREEMPT_RT a reader of a module device that holds a
+//! mutex SERVO needs is not boosted, and the cycle's wake-up latency has no
+//! bound; loading there anyway is an explicit choice (`allow_non_rt=1`), for
+//! development only.
 
+use crate::hap_core::platform::{self, KernelFacts, Unfit};
 use kernel::prelude::*;
 
 /// The hrtimer resolution in ns: 1 once the kernel runs high-resolution
@@ -30,55 +32,35 @@ pub(crate) fn hrtimer_resolution_ns() -> u32 {
     kernel::bindings::LOW_RES_NSEC
 }
 
-/// Why the module refuses this kernel, if it does.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Unfit {
-    /// Built without CONFIG_HIGH_RES_TIMERS: timers expire on the tick.
-    NoHighResTimers,
-    /// High-resolution timers not active (yet): the resolution, ns.
-    LowResolution(u32),
-    /// Built without CONFIG_PREEMPT_RT and `allow_non_rt` not set.
-    NotPreemptRt,
-}
-
-/// Check the kernel for a cycle of `period_us`: high-resolution timers built
-/// in and active (resolution at most 1/20 of the period: before the switch
-/// hrtimers expire on the periodic tick, the 3/4-period check would land on
-/// the next cycle's tick and every cycle would miss), and PREEMPT_RT unless
-/// `allow_non_rt`.
-pub(crate) fn check(period_us: u32, allow_non_rt: bool) -> Result<(), Unfit> {
-    if !cfg!(CONFIG_HIGH_RES_TIMERS) {
-        return Err(Unfit::NoHighResTimers);
-    }
-    let resolution = hrtimer_resolution_ns();
-    if u64::from(resolution).saturating_mul(20) > u64::from(period_us).saturating_mul(1000) {
-        return Err(Unfit::LowResolution(resolution));
-    }
-    if !cfg!(CONFIG_PREEMPT_RT) && !allow_non_rt {
-        return Err(Unfit::NotPreemptRt);
-    }
-    Ok(())
-}
-
-impl Unfit {
-    /// Print why (one dmesg line) and give insmod's errno.
-    pub(crate) fn report(self) -> Error {
-        match self {
-            Unfit::NoHighResTimers => {
-                pr_err!("refusing to load: kernel built without CONFIG_HIGH_RES_TIMERS (timers expire on the tick)\n");
-                ENODEV
+/// Refuse a kernel the cycle cannot run on, with one dmesg line saying why
+/// and insmod's errno; warn when `allow_non_rt` lets a non-RT kernel in.
+pub(crate) fn check(period_us: u32, allow_non_rt: bool) -> Result {
+    let facts = KernelFacts {
+        high_res_timers: cfg!(CONFIG_HIGH_RES_TIMERS),
+        hrtimer_resolution_ns: hrtimer_resolution_ns(),
+        preempt_rt: cfg!(CONFIG_PREEMPT_RT),
+    };
+    match platform::check(facts, period_us, allow_non_rt) {
+        Ok(()) => {
+            if !facts.preempt_rt {
+                pr_warn!("kernel without CONFIG_PREEMPT_RT, loading because allow_non_rt=1: no latency bound\n");
             }
-            Unfit::LowResolution(ns) => {
-                pr_err!(
-                    "high-resolution timers are not active (resolution {} ns); retry once the clocksource switched (see dmesg)\n",
-                    ns
-                );
-                EAGAIN
-            }
-            Unfit::NotPreemptRt => {
-                pr_err!("refusing to load: kernel built without CONFIG_PREEMPT_RT (no priority inheritance on the module's locks, unbounded wake-up latency); load with allow_non_rt=1 to run anyway\n");
-                ENODEV
-            }
+            Ok(())
+        }
+        Err(Unfit::NoHighResTimers) => {
+            pr_err!("refusing to load: kernel built without CONFIG_HIGH_RES_TIMERS (timers expire on the tick)\n");
+            Err(ENODEV)
+        }
+        Err(Unfit::LowResolution(ns)) => {
+            pr_err!(
+                "high-resolution timers are not active (resolution {} ns); retry once the clocksource switched (see dmesg)\n",
+                ns
+            );
+            Err(EAGAIN)
+        }
+        Err(Unfit::NotPreemptRt) => {
+            pr_err!("refusing to load: kernel built without CONFIG_PREEMPT_RT (no priority inheritance on the module's locks, unbounded wake-up latency); load with allow_non_rt=1 to run anyway\n");
+            Err(ENODEV)
         }
     }
 }

@@ -620,7 +620,7 @@ impl Vec3 {
         }
         // Small vectors: shift so that the largest component stays below
         // 2^30 raw (0.25), by at most 16 bits.
-        let k = if lz > 34 { lz - 34 } else { 0 };
+        let k = lz.saturating_sub(34);
         let k = if k > 16 { 16 } else { k };
         if k == 0 {
             return self.norm_sq().sqrt();

@@ -19,6 +19,7 @@ pub mod cycle;
 pub mod effort;
 pub mod fixed;
 pub mod io;
+pub mod platform;
 pub mod proto_in;
 pub mod proto_synchro;
 pub mod protocol;
