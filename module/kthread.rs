@@ -65,8 +65,9 @@ struct Start<T: Send + Sync + 'static> {
 }
 
 /// A running kernel thread. Dropping it calls `kthread_stop()`, which waits
-/// for the body to return: the body must poll [`CurrentKThread::should_stop`] and whoever
-/// drops the handle must first wake the thread from any wait it may be in.
+/// for the body to return: the body must poll [`CurrentKThread::should_stop`]
+/// and whoever drops the handle must first wake the thread from any wait it
+/// may be in.
 pub(crate) struct KThread<T: Send + Sync + 'static> {
     task: NonNull<bindings::task_struct>,
     // Owned here, not by the thread: if the thread is stopped before it ever
