@@ -33,6 +33,22 @@ use kernel::{
 )]
 mod hap_core;
 
+/// Compile-time proof that a type is not `Send` (a guard or a token that
+/// must stay in its task): if it were, the trait lookup below would be
+/// ambiguous between the two impls and the build would fail.
+macro_rules! assert_not_send {
+    ($t:ty) => {
+        const _: fn() = || {
+            trait AmbiguousIfSend<A> {
+                fn item() {}
+            }
+            impl<T: ?Sized> AmbiguousIfSend<()> for T {}
+            impl<T: ?Sized + Send> AmbiguousIfSend<u8> for T {}
+            let _ = <$t as AmbiguousIfSend<_>>::item;
+        };
+    };
+}
+
 mod clock;
 mod completion;
 mod fault;

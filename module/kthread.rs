@@ -49,6 +49,9 @@ pub(crate) struct CurrentKThread {
     _not_send: NotThreadSafe,
 }
 
+assert_not_send!(CurrentKThread);
+assert_not_send!(&CurrentKThread);
+
 impl CurrentKThread {
     /// True once `kthread_stop()` was called on this thread.
     pub(crate) fn should_stop(&self) -> bool {

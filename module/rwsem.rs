@@ -77,6 +77,9 @@ pub(crate) struct ReadGuard<'a, T> {
     _not_send: NotThreadSafe,
 }
 
+assert_not_send!(ReadGuard<'static, u32>);
+assert_not_send!(WriteGuard<'static, u32>);
+
 impl<T> core::ops::Deref for ReadGuard<'_, T> {
     type Target = T;
     fn deref(&self) -> &T {
