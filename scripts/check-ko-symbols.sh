@@ -30,21 +30,28 @@ else
   echo "check-ko-symbols: $ko: no soft-float or 128-bit helper references ($("$NM" -u "$ko" | wc -l) undefined symbols checked)"
 fi
 
-# One line per panic call site: "<function> <panicking symbol>" (mangled, v0).
-sites=$("$OBJDUMP" -dr "$ko" | awk '
+# Every call from a function to a `core` symbol: "<function> <target>"
+# (mangled, v0); the panic paths among the targets are picked after demangling.
+calls=$("$OBJDUMP" -dr "$ko" | awk '
   /^[0-9a-f]+ <.*>:$/ { fn = $2; gsub(/[<>:]/, "", fn) }
-  /R_X86_64_[A-Z0-9]+[ \t]/ && /core9panicking/ { s = $NF; sub(/[-+]0x[0-9a-f]+$/, "", s); print fn, s }')
+  /R_X86_64_[A-Z0-9]+[ \t]/ && /_4core/ { s = $NF; sub(/[-+]0x[0-9a-f]+$/, "", s); print fn, s }')
 demangle() { if [ -n "$DEMANGLE" ]; then "$DEMANGLE"; else cat; fi; }
-report=$(printf '%s\n' "$sites" | grep . | while read -r fn sym; do
+report=$(printf '%s\n' "$calls" | { grep . || true; } | while read -r fn sym; do
   printf '%s\t%s\t%s\n' "$fn" "$(printf '%s\n' "$fn" | demangle)" "$(printf '%s\n' "$sym" | demangle)"
 done | perl -F'\t' -lane '
   my ($m, $fn, $sym) = @F;
+  # The panic entry points of core: core::panicking::*, and the cold
+  # helpers that call them (unwrap_failed, expect_failed, slice and str
+  # index failures, copy_from_slice length mismatch, RefCell borrow ...).
+  next unless $sym =~ /^core::panicking::/
+    || $sym =~ /^(?:core::|_R\w*_4core).*(?:unwrap_failed|expect_failed|_fail\b|do_panic|panic_\w+)/;
   $sym =~ s/^core::panicking::(panic_const::)?//;
   # The first crate in a v0 symbol is the crate that defines the function.
+  my $crate = "";
   if ($m =~ /Cs[A-Za-z0-9]+_(\d+)([A-Za-z_]\w*)/) { $crate = substr($2, 0, $1) }
   my $ours = $fn =~ /\bhapticctrl::/;   # a type of ours among the generic arguments
   my $class;
-  if (defined $crate && $crate eq "hapticctrl") { $class = "own" }
+  if ($crate eq "hapticctrl") { $class = "own" }
   elsif ($crate eq "core" && $fn =~ /^core::panicking::/) { next }  # the panic machinery itself
   elsif ($ours && $fn =~ /^<kernel::miscdevice::MiscdeviceVTable</ && $sym =~ /^assert_failed/) {
     # rust/kernel/iov.rs: assert_eq! on the iterator direction, in the kernel
