@@ -3,9 +3,10 @@
 #  1. references to soft-float or 128-bit integer helpers (the kernel's
 #     versions of those panic);
 #  2. panic call sites in the module's own functions (hap-core included, it is
-#     compiled into the module): every relocation to a `core::panicking`
-#     symbol (panic, panic_fmt, panic_bounds_check, panic_const_*_overflow,
-#     unwrap_failed, expect_failed, slice index failures, assert_failed ...)
+#     compiled into the module): every relocation to a panic entry point of
+#     `core` (core::panicking::*: panic, panic_fmt, panic_bounds_check,
+#     panic_const_*_overflow, assert_failed ...; and the cold helpers that
+#     call it: unwrap_failed, expect_failed, slice index and length failures)
 #     in a function of the `hapticctrl` crate, or in a kernel-crate generic
 #     instantiated for one of its types (module code inlined into the kernel's
 #     glue). A Rust panic in CLOCK or SERVO is a kernel BUG().
