@@ -8,7 +8,7 @@
 //!   SERVO still busy gets no second cycle queued; the tick is counted as
 //!   not posted).
 //! - The check timer fires at 3/4 of each period and wakes the CLOCK thread
-//!   (SCHED_FIFO 99, above SERVO), which reads the cycle handshake
+//!   (SCHED_FIFO 90, above SERVO), which reads the cycle handshake
 //!   (`hap_core::handshake`: did SERVO finish this tick?), asks hap-core's
 //!   `Supervisor` for the verdict, records the statistics in its own
 //!   `HapStats` and publishes them through a seqcount (`Shared::stats`:
@@ -134,15 +134,7 @@ impl_has_hr_timer! {
     }
 }
 
-/// The hrtimer resolution in ns: 1 once the kernel runs high-resolution
-/// timers, the tick length (1 ms at HZ=1000) before the switch (early boot,
-/// or no high-resolution clock event device).
-pub(crate) fn hrtimer_resolution_ns() -> u32 {
-    // SAFETY: `hrtimer_resolution` is an exported, naturally aligned `unsigned
-    // int` that the kernel only writes when it switches timer modes; a racy
-    // read gives the old or the new value, both meaningful.
-    unsafe { core::ptr::read_volatile(&raw const kernel::bindings::hrtimer_resolution) }
-}
+pub(crate) use crate::kconfig::hrtimer_resolution_ns;
 
 /// Publish CLOCK's statistics (`set`: what changed since the last time).
 fn publish(sh: &Shared, st: &mut HapStats, set: WordSet) {
@@ -151,7 +143,7 @@ fn publish(sh: &Shared, st: &mut HapStats, set: WordSet) {
 }
 
 /// CLOCK's thread body.
-pub(crate) fn clock_main(sh: &Shared) {
+pub(crate) fn clock_main(kt: &crate::kthread::CurrentKThread, sh: &Shared) {
     let mut sup = Supervisor::new();
     let mut last_tick_seen = 0u64;
     // CLOCK's own statistics, taken once: from here on no lock.
@@ -160,7 +152,7 @@ pub(crate) fn clock_main(sh: &Shared) {
         return;
     };
     publish(sh, &mut stats, WordSet::All);
-    while !crate::kthread::should_stop() && !sh.is_stopping() {
+    while !kt.should_stop() && !sh.is_stopping() {
         if sh.check_due.wait_timeout(100) == Wait::TimedOut {
             continue;
         }

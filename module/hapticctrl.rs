@@ -32,11 +32,28 @@ use kernel::{
 )]
 mod hap_core;
 
+/// Compile-time proof that a type is not `Send` (a guard or a token that
+/// must stay in its task): if it were, the trait lookup below would be
+/// ambiguous between the two impls and the build would fail.
+macro_rules! assert_not_send {
+    ($t:ty) => {
+        const _: fn() = || {
+            trait AmbiguousIfSend<A> {
+                fn item() {}
+            }
+            impl<T: ?Sized> AmbiguousIfSend<()> for T {}
+            impl<T: ?Sized + Send> AmbiguousIfSend<u8> for T {}
+            let _ = <$t as AmbiguousIfSend<_>>::item;
+        };
+    };
+}
+
 mod clock;
 mod completion;
 mod device;
 mod fault;
 mod io;
+mod kconfig;
 mod kthread;
 mod proto_in;
 mod proto_synchro;
@@ -47,6 +64,7 @@ mod servo;
 mod shared;
 mod simulator;
 mod stats;
+mod uaccess;
 
 use clock::{Stop, Timers};
 use device::{register, Registration};
@@ -70,12 +88,21 @@ module! {
             default: 1000,
             description: "Servo period in microseconds (250..=10000)",
         },
+        allow_non_rt: bool {
+            default: false,
+            description: "Load on a kernel without CONFIG_PREEMPT_RT (development only: no bounded latency)",
+        },
     },
 }
 
-/// SCHED_FIFO priorities (spec §3.4–3.5: CLOCK above SERVO above PROTO_IN).
-const CLOCK_PRIORITY: u8 = 99;
+/// Scheduling classes (spec §3.4–3.5: CLOCK above SERVO above PROTO_IN;
+/// Documentation/architecture.md argues each level). PROTO_IN takes the
+/// kernel's `sched_set_fifo_low()`; CLOCK and SERVO need two distinct levels
+/// above the threaded interrupts (FIFO 50), which the kernel's helpers do
+/// not offer. FIFO 99 stays free for the administrator's own tools.
+const CLOCK_PRIORITY: u8 = 90;
 const SERVO_PRIORITY: u8 = 80;
+const PROTO_IN_CLASS: SchedClass = SchedClass::FifoLow;
 const PROTO_IN_PRIORITY: u8 = 1;
 
 /// The char devices (registered before the tasks, removed after them).
@@ -117,8 +144,8 @@ struct Tasks {
 
 impl Tasks {
     fn start(shared: &Arc<Shared>) -> Result<Self> {
-        let spawn = |name: &'static CStr, prio, body| {
-            KThread::spawn(name, SchedClass::Fifo(prio), shared.clone(), body)
+        let spawn = |name: &'static CStr, class, body| {
+            KThread::spawn(name, class, shared.clone(), body)
                 .inspect_err(|e| pr_err!("cannot start {}: {:?}\n", name, e))
         };
         // Partial failures unwind through `Drop for Tasks` (reverse order).
@@ -130,17 +157,17 @@ impl Tasks {
         };
         tasks.proto_in = Some(spawn(
             c_str!("hap_proto_in"),
-            PROTO_IN_PRIORITY,
+            PROTO_IN_CLASS,
             proto_in::proto_in_main,
         )?);
         tasks.servo = Some(spawn(
             c_str!("hap_servo"),
-            SERVO_PRIORITY,
+            SchedClass::Fifo(SERVO_PRIORITY),
             servo::servo_main,
         )?);
         tasks.clock = Some(spawn(
             c_str!("hap_clock"),
-            CLOCK_PRIORITY,
+            SchedClass::Fifo(CLOCK_PRIORITY),
             clock::clock_main,
         )?);
         tasks.timers = Some(Timers::start(shared)?);
@@ -177,17 +204,8 @@ impl kernel::Module for HapticCtrl {
             );
             return Err(EINVAL);
         }
-        // Before the kernel switches to high-resolution timers (early boot)
-        // hrtimers expire on the periodic tick: the 3/4-period check would
-        // land on the next cycle's tick and every cycle would miss.
-        let resolution = clock::hrtimer_resolution_ns();
-        if i64::from(resolution) > i64::from(period_us) * 1000 / 20 {
-            pr_err!(
-                "high-resolution timers are not active (resolution {} ns); retry once the clocksource switched (see dmesg)\n",
-                resolution
-            );
-            return Err(EAGAIN);
-        }
+        let allow_non_rt = module_parameters::allow_non_rt.value();
+        kconfig::check(period_us, allow_non_rt)?;
         shared::init_global();
         let shared = Arc::pin_init(Shared::new(period_us)?, GFP_KERNEL)
             .inspect_err(|e| pr_err!("cannot create the channels: {:?}\n", e))?;

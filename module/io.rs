@@ -89,6 +89,6 @@ impl HapDevice for Power {
         let _ = write!(text, " applied=");
         let _ = write_torques(&mut text, &line.applied());
         let _ = writeln!(text);
-        iov.simple_read_from_buffer(pos, text.as_bytes())
+        crate::uaccess::read_at(iov, pos, text.as_bytes())
     }
 }

@@ -4,17 +4,25 @@
 //! the raw kthread bindings (the kernel crate has no kthread abstraction in 7.3).
 
 use core::{ffi::c_void, ptr::NonNull};
-use kernel::{bindings, error::from_err_ptr, prelude::*, sync::Arc};
+use kernel::{bindings, error::from_err_ptr, prelude::*, sync::Arc, types::NotThreadSafe};
 
 /// Scheduling class of a [`KThread`].
 #[derive(Clone, Copy)]
 pub(crate) enum SchedClass {
-    /// `SCHED_FIFO` at the given priority (1..=99).
+    /// `SCHED_FIFO` 1, set with the kernel's `sched_set_fifo_low()`: above
+    /// every `SCHED_OTHER` task, below every other real-time one.
+    FifoLow,
+    /// `SCHED_FIFO` at the given priority (2..=99), for the levels the
+    /// kernel's helpers do not offer (Documentation/architecture.md argues
+    /// each one).
     Fifo(u8),
 }
 
 /// The uapi `struct sched_attr` (include/uapi/linux/sched/types.h,
-/// `SCHED_ATTR_SIZE_VER1`): the kernel's bindings only see it as opaque.
+/// `SCHED_ATTR_SIZE_VER1`): the kernel's bindings only see it as opaque,
+/// and `sched_setattr_nocheck()` is the one exported way to give a kthread
+/// a chosen `SCHED_FIFO` priority (`sched_setscheduler_nocheck()` is not
+/// exported to modules).
 #[repr(C)]
 #[derive(Default)]
 struct SchedAttr {
@@ -30,15 +38,39 @@ struct SchedAttr {
     sched_util_max: u32,
 }
 
+// The layout of `SCHED_ATTR_SIZE_VER1`.
+const _: () = assert!(core::mem::size_of::<SchedAttr>() == 56);
+
+/// The running kthread, as its body sees it: only the trampoline of a
+/// [`KThread`] creates one, and it cannot leave the thread (`!Send`), so
+/// [`CurrentKThread::should_stop`] is only ever asked from a kthread, about
+/// itself (`kthread_should_stop()` oopses in any other task).
+pub(crate) struct CurrentKThread {
+    _not_send: NotThreadSafe,
+}
+
+assert_not_send!(CurrentKThread);
+assert_not_send!(&CurrentKThread);
+
+impl CurrentKThread {
+    /// True once `kthread_stop()` was called on this thread.
+    pub(crate) fn should_stop(&self) -> bool {
+        // SAFETY: `self` exists only on the stack of a kthread's trampoline
+        // (type invariant), and that kthread is the current task.
+        unsafe { bindings::kthread_should_stop() }
+    }
+}
+
 /// What a thread runs: its body and the shared context it borrows.
 struct Start<T: Send + Sync + 'static> {
     ctx: Arc<T>,
-    body: fn(&T),
+    body: fn(&CurrentKThread, &T),
 }
 
 /// A running kernel thread. Dropping it calls `kthread_stop()`, which waits
-/// for the body to return: the body must poll [`should_stop`] and whoever
-/// drops the handle must first wake the thread from any wait it may be in.
+/// for the body to return: the body must poll [`CurrentKThread::should_stop`]
+/// and whoever drops the handle must first wake the thread from any wait it
+/// may be in.
 pub(crate) struct KThread<T: Send + Sync + 'static> {
     task: NonNull<bindings::task_struct>,
     // Owned here, not by the thread: if the thread is stopped before it ever
@@ -56,13 +88,22 @@ unsafe extern "C" fn trampoline<T: Send + Sync + 'static>(data: *mut c_void) -> 
     // SAFETY: `data` is the `Start<T>` owned by the `KThread`, which lives
     // until `kthread_stop()` has returned, i.e. until after this function.
     let start = unsafe { &*data.cast::<Start<T>>() };
-    (start.body)(&start.ctx);
+    // INVARIANT: created on this kthread's stack, lent to its body only.
+    let current = CurrentKThread {
+        _not_send: NotThreadSafe,
+    };
+    (start.body)(&current, &start.ctx);
     0
 }
 
 impl<T: Send + Sync + 'static> KThread<T> {
     /// Create the thread `name`, set its scheduling class, and wake it.
-    pub(crate) fn spawn(name: &CStr, class: SchedClass, ctx: Arc<T>, body: fn(&T)) -> Result<Self> {
+    pub(crate) fn spawn(
+        name: &CStr,
+        class: SchedClass,
+        ctx: Arc<T>,
+        body: fn(&CurrentKThread, &T),
+    ) -> Result<Self> {
         let start = KBox::new(Start { ctx, body }, GFP_KERNEL)?;
         let data = (&raw const *start).cast_mut().cast::<c_void>();
         // SAFETY: `trampoline::<T>` matches the kthread function signature and
@@ -87,6 +128,8 @@ impl<T: Send + Sync + 'static> KThread<T> {
             _start: start,
         };
         match class {
+            // SAFETY: `task` is valid (we hold a reference).
+            SchedClass::FifoLow => unsafe { bindings::sched_set_fifo_low(this.task.as_ptr()) },
             SchedClass::Fifo(prio) => {
                 let attr = SchedAttr {
                     size: core::mem::size_of::<SchedAttr>() as u32,
@@ -120,10 +163,4 @@ impl<T: Send + Sync + 'static> Drop for KThread<T> {
         // `kthread_stop_put()` waits for the thread to exit and drops it.
         unsafe { bindings::kthread_stop_put(self.task.as_ptr()) };
     }
-}
-
-/// True once `kthread_stop()` was called on the current kthread.
-pub(crate) fn should_stop() -> bool {
-    // SAFETY: only called from the bodies of threads made by `KThread::spawn`.
-    unsafe { bindings::kthread_should_stop() }
 }

@@ -13,15 +13,15 @@ use crate::{
     completion::Wait,
     hap_core::protocol::{encode, FrameHeader, MAX_FRAME_LEN},
     hap_core::servo::PowerRequest,
-    kthread,
+    kthread::CurrentKThread,
     shared::{proto_words, Shared},
 };
 use kernel::sync::atomic::Relaxed;
 
 /// PROTO_IN's thread body.
-pub(crate) fn proto_in_main(sh: &Shared) {
+pub(crate) fn proto_in_main(kt: &CurrentKThread, sh: &Shared) {
     let mut frame = [0u8; MAX_FRAME_LEN];
-    while !kthread::should_stop() && !sh.is_stopping() {
+    while !kt.should_stop() && !sh.is_stopping() {
         if sh.rtf_in_ready.wait_timeout(100) == Wait::TimedOut {
             continue;
         }

@@ -6,7 +6,12 @@
 //! its previous copy when a write is in progress.
 
 use core::{cell::UnsafeCell, marker::PhantomPinned};
-use kernel::{bindings, prelude::*, sync::LockClassKey, types::Opaque};
+use kernel::{
+    bindings,
+    prelude::*,
+    sync::LockClassKey,
+    types::{NotThreadSafe, Opaque},
+};
 
 #[pin_data]
 pub(crate) struct RwSem<T> {
@@ -44,7 +49,10 @@ impl<T> RwSem<T> {
     pub(crate) fn try_read(&self) -> Option<ReadGuard<'_, T>> {
         // SAFETY: `sem` is initialised.
         if unsafe { bindings::down_read_trylock(self.sem.get()) } != 0 {
-            Some(ReadGuard { lock: self })
+            Some(ReadGuard {
+                lock: self,
+                _not_send: NotThreadSafe,
+            })
         } else {
             None
         }
@@ -54,13 +62,23 @@ impl<T> RwSem<T> {
     pub(crate) fn write(&self) -> WriteGuard<'_, T> {
         // SAFETY: `sem` is initialised; the caller may sleep.
         unsafe { bindings::down_write(self.sem.get()) };
-        WriteGuard { lock: self }
+        WriteGuard {
+            lock: self,
+            _not_send: NotThreadSafe,
+        }
     }
 }
 
+/// Shared access to an [`RwSem`]'s data; released on drop, by the task that
+/// took it (`!Send`, like the kernel's lock guards: on PREEMPT_RT the rwsem
+/// is an rt_mutex-based lock whose owner must release it).
 pub(crate) struct ReadGuard<'a, T> {
     lock: &'a RwSem<T>,
+    _not_send: NotThreadSafe,
 }
+
+assert_not_send!(ReadGuard<'static, u32>);
+assert_not_send!(WriteGuard<'static, u32>);
 
 impl<T> core::ops::Deref for ReadGuard<'_, T> {
     type Target = T;
@@ -77,8 +95,11 @@ impl<T> Drop for ReadGuard<'_, T> {
     }
 }
 
+/// Exclusive access to an [`RwSem`]'s data; released on drop, by the task
+/// that took it (`!Send`, see [`ReadGuard`]).
 pub(crate) struct WriteGuard<'a, T> {
     lock: &'a RwSem<T>,
+    _not_send: NotThreadSafe,
 }
 
 impl<T> core::ops::Deref for WriteGuard<'_, T> {

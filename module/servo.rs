@@ -26,15 +26,16 @@ use crate::{
         servo::{PowerRequest, ServoInputs, ServoMode},
         simulator::LogRecord,
     },
-    kthread, proto_synchro,
+    kthread::CurrentKThread,
+    proto_synchro,
     shared::{ServoData, Shared},
     simulator::take_effort,
 };
 use kernel::sync::atomic::{Acquire, Relaxed, Release};
 
 /// SERVO's thread body.
-pub(crate) fn servo_main(sh: &Shared) {
-    while !kthread::should_stop() && !sh.is_stopping() {
+pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Shared) {
+    while !kt.should_stop() && !sh.is_stopping() {
         sh.cycle.set_servo_waiting(true);
         let w = sh.cycle_start.wait_timeout(100);
         sh.cycle.set_servo_waiting(false);
@@ -57,7 +58,7 @@ pub(crate) fn servo_main(sh: &Shared) {
         sh.servo_start_ns.store(sh.now_ns(), Release);
 
         let mut data = sh.data.lock();
-        if inject_fault(sh) == Injected::Hung {
+        if inject_fault(kt, sh) == Injected::Hung {
             // The hung SERVO is released only by rmmod: it never finishes.
             break;
         }
@@ -126,9 +127,9 @@ enum Injected {
 /// the line. `overrun N`: stay busy past the 3/4 check, then run the cycle
 /// late; `hang`: never finish, blocked (as in a deadlock) until rmmod stops
 /// the thread.
-fn inject_fault(sh: &Shared) -> Injected {
+fn inject_fault(kt: &CurrentKThread, sh: &Shared) -> Injected {
     if sh.fault_hang.load(Acquire) {
-        while !kthread::should_stop() {
+        while !kt.should_stop() {
             kernel::time::delay::fsleep(kernel::time::Delta::from_millis(1));
         }
         return Injected::Hung;

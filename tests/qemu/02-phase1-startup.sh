@@ -7,7 +7,7 @@
 echo "# mode: $HAP_MODE"
 
 check "insmod period_us=$HAP_PERIOD_US" insmod $HAP_KO period_us=$HAP_PERIOD_US
-check "dmesg: loaded with the task priorities" dmesg_has "loaded, period $HAP_PERIOD_US us, CLOCK/SERVO/PROTO_IN at SCHED_FIFO 99/80/1"
+check "dmesg: loaded with the task priorities" dmesg_has "loaded, period $HAP_PERIOD_US us, CLOCK/SERVO/PROTO_IN at SCHED_FIFO 90/80/1"
 check "the three kernel tasks exist" sh -c 'ps | grep -q "\[hap_clock\]" && ps | grep -q "\[hap_servo\]" && ps | grep -q "\[hap_proto_in\]"'
 
 c0=$(stat_value cycles); m0=$(now_ms)

@@ -240,12 +240,14 @@ pub fn kinematics(q: &Joints) -> Kinematics {
     let last_joint = [1usize, 2, 5];
     let mut gravity = [Fx::ZERO; 6];
     let mut inertia = ROTOR_INERTIA;
-    for (i, ((g, inn), (zi, pi))) in gravity
-        .iter_mut()
-        .zip(inertia.iter_mut())
-        .zip(z.iter().zip(p.iter()))
-        .enumerate()
-    {
+    // A bounded index range, not `enumerate()`: the latter's counter is an
+    // overflow-checked addition (a panic path in the kernel).
+    for (i, ((g, inn), (zi, pi))) in (0..gravity.len()).zip(
+        gravity
+            .iter_mut()
+            .zip(inertia.iter_mut())
+            .zip(z.iter().zip(p.iter())),
+    ) {
         for ((c, m), lj) in com.iter().zip(MASS.iter()).zip(last_joint.iter()) {
             if i <= *lj {
                 let f = Vec3::new(Fx::ZERO, Fx::ZERO, m.mul_sat(GRAVITY).neg_sat());

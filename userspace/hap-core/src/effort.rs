@@ -165,12 +165,12 @@ pub fn parse_milli(f: &[u8]) -> Result<i32, EffortErrorKind> {
             }
             seen_dot = true;
         } else if b.is_ascii_digit() {
-            digits += 1;
-            let d = (b - b'0') as i64;
+            digits = digits.saturating_add(1);
+            let d = i64::from(b.wrapping_sub(b'0'));
             if !seen_dot {
                 int = int.saturating_mul(10).saturating_add(d);
             } else if frac_digits < 3 {
-                frac = frac * 10 + d;
+                frac = frac.saturating_mul(10).saturating_add(d);
                 frac_digits += 1;
             } else if frac_digits == 3 {
                 round_up = d >= 5;
@@ -184,7 +184,7 @@ pub fn parse_milli(f: &[u8]) -> Result<i32, EffortErrorKind> {
         return Err(EffortErrorKind::BadNumber);
     }
     while frac_digits < 3 {
-        frac *= 10;
+        frac = frac.saturating_mul(10);
         frac_digits += 1;
     }
     let mut m = int.saturating_mul(1000).saturating_add(frac);
@@ -194,8 +194,9 @@ pub fn parse_milli(f: &[u8]) -> Result<i32, EffortErrorKind> {
     if m > EFFORT_MAX_MILLI {
         return Err(EffortErrorKind::ValueOutOfRange);
     }
-    // |m| <= 1e6 fits in i32.
-    Ok(if neg { -(m as i32) } else { m as i32 })
+    // 0 <= m <= 1e6 fits in i32.
+    let m = i32::try_from(m).map_err(|_| EffortErrorKind::ValueOutOfRange)?;
+    Ok(if neg { m.saturating_neg() } else { m })
 }
 
 fn parse_flag(f: &[u8]) -> Result<bool, EffortErrorKind> {
@@ -234,8 +235,10 @@ fn parse_into(
     let mut n = 0usize;
     let mut last_line = 0u32;
     let mut prev_t: Option<u32> = None;
-    for (idx, raw_line) in text.split(|&b| b == b'\n').enumerate() {
-        let line_no = u32::try_from(idx).unwrap_or(u32::MAX - 1).saturating_add(1);
+    // Lines counted by hand (saturating): `enumerate()` would add an
+    // overflow-checked counter, a panic path in the kernel.
+    for raw_line in text.split(|&b| b == b'\n') {
+        let line_no = last_line.saturating_add(1);
         last_line = line_no;
         // Strip a trailing comment.
         let line = match raw_line.iter().position(|&b| b == b'#') {
@@ -258,14 +261,14 @@ fn parse_into(
         while pos < len {
             // skip blanks
             while line.get(pos).is_some_and(|&b| is_space(b)) {
-                pos += 1;
+                pos = pos.saturating_add(1);
             }
             if pos >= len {
                 break;
             }
             let start = pos;
             while line.get(pos).is_some_and(|&b| !is_space(b)) {
-                pos += 1;
+                pos = pos.saturating_add(1);
             }
             let f = line.get(start..pos).unwrap_or(&[]);
             match field {
@@ -278,7 +281,7 @@ fn parse_into(
                 }
                 1..=6 => {
                     let v = parse_milli(f).map_err(|k| err(start, k))?;
-                    if let Some(slot) = milli.get_mut(field - 1) {
+                    if let Some(slot) = milli.get_mut(field.wrapping_sub(1)) {
                         *slot = v;
                     }
                 }
@@ -296,17 +299,15 @@ fn parse_into(
                 }
                 _ => return Err(err(start, EffortErrorKind::TooManyFields)),
             }
-            field += 1;
+            field = field.saturating_add(1);
         }
         if field == 0 {
             continue;
         }
         if field < 7 {
             // Column just past the end of the line content.
-            let end = line
-                .iter()
-                .rposition(|&b| !is_space(b))
-                .map_or(0, |p| p + 1);
+            let trailing = line.iter().rev().take_while(|&&b| is_space(b)).count();
+            let end = line.len().saturating_sub(trailing);
             return Err(err(end, EffortErrorKind::MissingField));
         }
         let [a, b, c, d, e, f] = milli;
@@ -316,7 +317,7 @@ fn parse_into(
             return Err(err(0, EffortErrorKind::TooManyKeyframes));
         }
         sink(n, kf);
-        n += 1;
+        n = n.saturating_add(1);
         prev_t = Some(kf.t_ms);
     }
     if n == 0 {

@@ -285,15 +285,16 @@ impl Fx {
             y <<= sh;
         }
         let mut z: i64 = 0;
+        // After scaling |x|, |y| <= 2^60: negating never saturates.
         if x < 0 {
             if y >= 0 {
                 let t = x;
                 x = y;
-                y = -t;
+                y = t.saturating_neg();
                 z = HALF_PI_RAW;
             } else {
                 let t = x;
-                x = -y;
+                x = y.saturating_neg();
                 y = t;
                 z = -HALF_PI_RAW;
             }
@@ -411,9 +412,12 @@ const fn isqrt_u64(n: u64) -> u64 {
         bit >>= 2;
     }
     while bit != 0 {
-        if x >= res + bit {
-            x -= res + bit;
-            res = (res >> 1) + bit;
+        // `res < 2^32` and `bit <= 2^62`: the sums never saturate (the
+        // compiler cannot see that; saturating keeps it free of a panic path).
+        let t = res.saturating_add(bit);
+        if x >= t {
+            x -= t;
+            res = (res >> 1).saturating_add(bit);
         } else {
             res >>= 1;
         }
@@ -583,7 +587,9 @@ impl Vec3 {
     }
 
     /// Euclidean norm. Small vectors are scaled up by up to 2^16 before
-    /// squaring so that norms down to ~1e-9 keep their precision.
+    /// squaring so that norms down to ~1e-9 keep their precision; vectors with
+    /// a component of 2^14 or more are scaled down first, so that the norm
+    /// never comes from a saturated square (it saturates at `MAX` itself).
     pub const fn norm(self) -> Fx {
         let ax = self.x.0.unsigned_abs();
         let ay = self.y.0.unsigned_abs();
@@ -598,19 +604,27 @@ impl Vec3 {
         if m == 0 {
             return Fx::ZERO;
         }
-        // Shift so that the largest component stays below 2^30 raw (0.25).
-        let lz = m.leading_zeros() as i32;
-        let mut k = lz - 34;
-        if k < 0 {
-            k = 0;
+        let lz = m.leading_zeros();
+        if lz <= 17 {
+            // |component| >= 2^14: the squares could saturate (the norm would
+            // come out near sqrt(MAX) ~ 46341 whatever the vector). Scale down
+            // below 2^46 raw first, then back up, saturating at MAX.
+            let d = 18 - lz;
+            let v = Vec3::new(Fx(self.x.0 >> d), Fx(self.y.0 >> d), Fx(self.z.0 >> d));
+            let n = v.norm_sq().sqrt().0;
+            return if n > (i64::MAX >> d) {
+                Fx::MAX
+            } else {
+                Fx(n << d)
+            };
         }
-        if k > 16 {
-            k = 16;
-        }
+        // Small vectors: shift so that the largest component stays below
+        // 2^30 raw (0.25), by at most 16 bits.
+        let k = lz.saturating_sub(34);
+        let k = if k > 16 { 16 } else { k };
         if k == 0 {
             return self.norm_sq().sqrt();
         }
-        let k = k as u32;
         let v = Vec3::new(Fx(self.x.0 << k), Fx(self.y.0 << k), Fx(self.z.0 << k));
         Fx(v.norm_sq().sqrt().0 >> k)
     }
@@ -620,10 +634,20 @@ impl Vec3 {
     pub const fn clamp_norm(self, max: Fx) -> (Vec3, bool) {
         let n = self.norm();
         if n.0 <= max.0 || n.0 <= 0 {
-            (self, false)
-        } else {
-            (self.scale(max.abs().div_sat(n)), true)
+            return (self, false);
         }
+        if n.0 == i64::MAX {
+            // The norm saturated (up to sqrt(3)·2^31): a quarter of the
+            // vector has a representable one, and the same direction.
+            // Direction first (each component over the norm, full precision),
+            // then the length: `max / n` alone would be a few raw units.
+            let v = Vec3::new(Fx(self.x.0 >> 2), Fx(self.y.0 >> 2), Fx(self.z.0 >> 2));
+            let n = v.norm();
+            let m = max.abs();
+            let u = Vec3::new(v.x.div_sat(n), v.y.div_sat(n), v.z.div_sat(n));
+            return (u.scale(m), true);
+        }
+        (self.scale(max.abs().div_sat(n)), true)
     }
 
     /// Element-wise product.

@@ -20,6 +20,7 @@ pub mod effort;
 pub mod fixed;
 pub mod handshake;
 pub mod io;
+pub mod platform;
 pub mod proto_in;
 pub mod proto_synchro;
 pub mod protocol;

@@ -199,3 +199,38 @@ fn effort_device_commands() {
         other => panic!("{other:?}"),
     }
 }
+
+#[test]
+fn long_numbers_saturate_instead_of_overflowing() {
+    // A 64 KiB field: the digit counter and the fraction saturate, the
+    // value is judged on what it means.
+    let mut frac = b"1.".to_vec();
+    frac.extend(std::iter::repeat_n(b'9', 65_536));
+    assert_eq!(parse_milli(&frac), Ok(2000), "1.999... rounds to 2.000");
+    let mut neg = b"-0.".to_vec();
+    neg.extend(std::iter::repeat_n(b'0', 65_536));
+    neg.push(b'5');
+    assert_eq!(parse_milli(&neg), Ok(0));
+    let big = vec![b'9'; 65_536];
+    assert_eq!(parse_milli(&big), Err(EffortErrorKind::ValueOutOfRange));
+    let mut big_neg = b"-".to_vec();
+    big_neg.extend(std::iter::repeat_n(b'9', 65_536));
+    assert_eq!(parse_milli(&big_neg), Err(EffortErrorKind::ValueOutOfRange));
+    assert_eq!(parse_milli(b"-1000"), Ok(-1_000_000));
+    assert_eq!(
+        parse_milli(b"-1000.0005"),
+        Err(EffortErrorKind::ValueOutOfRange)
+    );
+}
+
+#[test]
+fn line_and_column_of_an_error_after_many_lines() {
+    // 70 000 blank or comment lines, then a short line: the line number
+    // counts them all, the column points past the last field.
+    let mut t = Vec::new();
+    for i in 0..70_000 {
+        t.extend_from_slice(if i % 2 == 0 { b"\n" } else { b"# c\n" });
+    }
+    t.extend_from_slice(b"5 1 2 3 \t \r\n");
+    assert_eq!(err(&t), (70_001, 8, EffortErrorKind::MissingField));
+}

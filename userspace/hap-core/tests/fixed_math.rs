@@ -239,6 +239,119 @@ fn axis_angle_error_vector_and_normalize() {
     assert_eq!(Mat3::IDENTITY.mul(&Mat3::IDENTITY), Mat3::IDENTITY);
 }
 
+/// Relative error of `got` against the exact `want` (f64).
+fn rel_err(got: f64, want: f64) -> f64 {
+    ((got - want) / want).abs()
+}
+
+#[test]
+fn sqrt_at_the_ends_of_the_range() {
+    // The largest input drives the integer square root's partial sums
+    // highest; the smallest positive one its lowest bits.
+    for raw in [
+        i64::MAX,
+        i64::MAX - 1,
+        1 << 62,
+        (1 << 62) - 1,
+        1,
+        2,
+        3,
+        1 << 32,
+    ] {
+        let want = (raw as f64 / 4294967296.0).sqrt();
+        let got = Fx(raw).sqrt().to_f64();
+        assert!(
+            rel_err(got, want) < 1e-9 || (got - want).abs() < 3e-10,
+            "sqrt({raw}): {got} vs {want}"
+        );
+    }
+    assert_eq!(Fx::MIN.sqrt(), Fx::ZERO);
+}
+
+#[test]
+fn atan2_at_the_ends_of_the_range() {
+    // MIN and MAX components: the quadrant rotation negates them (after
+    // scaling), which must neither overflow nor lose the quadrant.
+    let ends = [Fx::MIN, Fx(i64::MIN + 1), Fx(-1), Fx::ZERO, Fx(1), Fx::MAX];
+    for y in ends {
+        for x in ends {
+            let want = if x == Fx::ZERO && y == Fx::ZERO {
+                0.0
+            } else {
+                libm::atan2(y.to_f64(), x.to_f64())
+            };
+            let got = Fx::atan2(y, x).to_f64();
+            // (-π, π]: atan2(-0, -x) is +π here.
+            let want = if want <= -std::f64::consts::PI + 1e-9 {
+                std::f64::consts::PI
+            } else {
+                want
+            };
+            assert!(
+                (got - want).abs() < 1e-8,
+                "atan2({}, {}): {got} vs {want}",
+                y.0,
+                x.0
+            );
+        }
+    }
+}
+
+#[test]
+fn norm_of_large_vectors_saturates_instead_of_the_squares() {
+    // Components of 2^14 and more used to give a saturated |v|^2, so a norm
+    // near sqrt(MAX) ~ 46341 whatever the vector.
+    for v in [
+        [1.0e6f64, 0.0, 0.0],
+        [3.0e4, -4.0e4, 0.0],
+        [1.6384e4, 1.6384e4, 1.6384e4],
+        [-1.2e9, 1.0e9, 5.0e8],
+        [1.0e4, 2.0e4, -2.0e4],
+    ] {
+        let want = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let got = Vec3::from_f64(v).norm().to_f64();
+        assert!(rel_err(got, want) < 1e-8, "|{v:?}|: {got} vs {want}");
+    }
+    // Beyond the range: saturates at MAX, never below the largest component.
+    assert_eq!(Vec3::new(Fx::MIN, Fx::MIN, Fx::MIN).norm(), Fx::MAX);
+    let n = Vec3::new(Fx::MAX, Fx::ZERO, Fx::ZERO).norm();
+    assert!(
+        rel_err(n.to_f64(), Fx::MAX.to_f64()) < 1e-8,
+        "{}",
+        n.to_f64()
+    );
+}
+
+#[test]
+fn clamp_norm_bounds_huge_vectors() {
+    // The safety limit on a wrench: whatever comes in, what goes out has a
+    // norm of at most `max` (it was 21x `max` for a 1e6 N force).
+    let max = Fx::from_int(10);
+    for v in [
+        [1.0e6f64, 0.0, 0.0],
+        [-2.0e9, 2.0e9, -2.0e9],
+        [5.0e4, 5.0e4, 0.0],
+        [2.0e4, 0.0, -1.0],
+    ] {
+        let (c, clamped) = Vec3::from_f64(v).clamp_norm(max);
+        assert!(clamped, "{v:?}");
+        assert!(
+            c.norm().to_f64() <= 10.0 + 1e-6,
+            "{v:?} clamped to |{:?}| = {}",
+            c.to_f64(),
+            c.norm().to_f64()
+        );
+        assert!(
+            c.norm().to_f64() > 9.99,
+            "{v:?} clamped to {}",
+            c.norm().to_f64()
+        );
+    }
+    let huge = Vec3::new(Fx::MIN, Fx::MAX, Fx::MIN);
+    let (c, _) = huge.clamp_norm(max);
+    assert!(c.norm().to_f64() <= 10.0 + 1e-6, "{}", c.norm().to_f64());
+}
+
 proptest! {
     #[test]
     fn arithmetic_never_panics(a in any::<i64>(), b in any::<i64>()) {

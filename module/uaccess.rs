@@ -1,0 +1,20 @@
+// SPDX-License-Identifier: GPL-2.0
+
+//! Reading a device's text at the file position, without a panic path: the
+//! kernel's `IovIterDest::simple_read_from_buffer()` does the same with an
+//! overflow-checked addition (correct, but a `core::panicking` reference in
+//! every module function it is inlined into; see scripts/check-ko-symbols.sh).
+
+use kernel::{iov::IovIterDest, prelude::*};
+
+/// Copy `contents[*ppos..]` to `iov` and advance `*ppos` by what was copied;
+/// 0 at or past the end, `EINVAL` for a negative position.
+pub(crate) fn read_at(iov: &mut IovIterDest<'_>, ppos: &mut i64, contents: &[u8]) -> Result<usize> {
+    let pos = usize::try_from(*ppos).map_err(|_| EINVAL)?;
+    let Some(rest) = contents.get(pos..) else {
+        return Ok(0);
+    };
+    let n = iov.copy_to_iter(rest);
+    *ppos = i64::try_from(pos.saturating_add(n)).unwrap_or(i64::MAX);
+    Ok(n)
+}
