@@ -3,14 +3,18 @@
 //! SERVO (the spec's hap_servo): waits at the cycle barrier, then runs one
 //! servo cycle under `mtx_data`: hap-core's `ServoCycle::run` (get_measures →
 //! logical/physical state → cartesian_control → send_commands → simulate_arm)
-//! between the synchronizer's `receive_vp` and `send_vp`, then logs the
-//! simulator's position. The main and the auxiliary (degraded) path are the
-//! same code (spec §3.5); CLOCK's supervisor picks the mode.
+//! between the synchronizer's `receive_vp` and `send_vp`; after `mtx_data`
+//! is released it logs the simulator's position with the cycle's timing.
+//! The main and the auxiliary (degraded) path are the same code (spec
+//! §3.5); CLOCK's supervisor picks the mode.
 //! No allocation, no printk, no sleeping lock but `mtx_data` inside the cycle.
 
 use crate::{
     completion::Wait,
-    hap_core::servo::{PowerRequest, ServoInputs, ServoMode},
+    hap_core::{
+        servo::{PowerRequest, ServoInputs, ServoMode},
+        simulator::{LogRecord, LogTiming},
+    },
     kthread, proto_synchro,
     shared::{ServoData, Shared},
 };
@@ -31,14 +35,27 @@ pub(crate) fn servo_main(sh: &Shared) {
         // The spec's servo_working = TRUE.
         sh.servo_working.store(true, Release);
         let tick = sh.tick.load(Acquire);
-        sh.servo_start_ns.store(sh.now_ns(), Release);
+        let start_ns = sh.now_ns();
+        let expiry_ns = sh.expiry_ns.load(Acquire);
+        sh.servo_start_ns.store(start_ns, Release);
 
         let mut data = sh.data.lock();
         servo_cycle(sh, &mut data);
+        let mut rec = *data.cycle.servo.log_record();
         drop(data);
 
         inject_overrun(sh);
-        sh.servo_end_ns.store(sh.now_ns(), Release);
+        let end_ns = sh.now_ns();
+        sh.servo_end_ns.store(end_ns, Release);
+        // The position log, with this cycle's timing (pushed after the
+        // cycle so that the execution time includes everything SERVO did).
+        rec.timing = LogTiming {
+            tick,
+            start_ns: u64::try_from(start_ns).unwrap_or(0),
+            wakeup_ns: ns_u32(start_ns.saturating_sub(expiry_ns)),
+            exec_ns: ns_u32(end_ns.saturating_sub(start_ns)),
+        };
+        push_log(sh, &rec);
         sh.servo_done_tick.store(tick, Release);
         sh.servo_working.store(false, Release);
     }
@@ -53,6 +70,21 @@ pub(crate) fn servo_main(sh: &Shared) {
 pub(crate) fn calibrate(sh: &Shared) {
     let mut data = sh.data.lock();
     servo_cycle(sh, &mut data);
+    let rec = *data.cycle.servo.log_record();
+    drop(data);
+    push_log(sh, &rec);
+}
+
+/// Append one record to the position log (the oldest is dropped, and
+/// counted, when nobody reads).
+fn push_log(sh: &Shared, rec: &LogRecord) {
+    let mut buf = [0u8; LogRecord::SIZE];
+    rec.encode(&mut buf);
+    sh.simlog.push_overwrite(&buf);
+}
+
+fn ns_u32(ns: i64) -> u32 {
+    u32::try_from(ns.max(0)).unwrap_or(u32::MAX)
 }
 
 fn servo_cycle(sh: &Shared, data: &mut ServoData) {
@@ -93,10 +125,6 @@ fn servo_cycle(sh: &Shared, data: &mut ServoData) {
     if result.extrapolated {
         sh.vpr_extrapolated.add(1, Relaxed);
     }
-    // The simulator's position log.
-    let mut rec = [0u8; crate::hap_core::simulator::LogRecord::SIZE];
-    data.cycle.servo.log_record().encode(&mut rec);
-    sh.simlog.push_overwrite(&rec);
 }
 
 /// Fault injection (`/dev/hap_fault`): stay busy past the 3/4 check, outside

@@ -32,8 +32,9 @@ pub(crate) struct ServoData {
     pub(crate) config: ServoConfig,
 }
 
-/// Position-log records kept (about 4 s at 1 kHz).
-pub(crate) const SIMLOG_RECORDS: usize = 4096;
+/// Position-log records kept until read (about 2 s at 1 kHz; 552-byte
+/// records, one ~1.1 MB allocation).
+pub(crate) const SIMLOG_RECORDS: usize = 2048;
 
 /// Controller state, as shown in /dev/hap_stats.
 pub(crate) mod state {

@@ -10,21 +10,24 @@
 //! - `/dev/hap_simlog`: the position log, whole `LogRecord`s (288 bytes
 //!   each, hap-core's layout); a read returns as many whole records as fit,
 //!   blocking until one is there (`EAGAIN` with `O_NONBLOCK`, end of file
-//!   after the fail-safe). When nobody reads, the oldest records are dropped.
+//!   after the fail-safe). When nobody reads, the oldest records are dropped
+//!   (counted: `simlog.dropped` in `/dev/hap_stats`). Each fail-safe step
+//!   adds a record of mode `FailSafe` ([`log_fail_safe_step`]).
 
 use crate::{
     hap_core::{
         effort::{parse_effort_command, EffortCommand, EffortCommandError, EFFORT_CAPACITY},
-        simulator::LogRecord,
+        simulator::{LogMode, LogRecord, LogTiming},
+        vp::alarm,
     },
-    shared::DeviceFile,
+    shared::{DeviceFile, Shared},
 };
 use kernel::{
     fs::{File, Kiocb},
     iov::{IovIterDest, IovIterSource},
     miscdevice::{MiscDevice, MiscDeviceRegistration},
     prelude::*,
-    sync::atomic::{Relaxed, Release},
+    sync::atomic::{Acquire, Relaxed, Release},
 };
 
 /// Largest effort-sequence write.
@@ -133,4 +136,27 @@ impl MiscDevice for SimLogDevice {
             }
         }
     }
+}
+
+/// Log fail-safe step `step` (1-based, `FAIL_SAFE_SEQUENCE` order) as it
+/// starts: the servo's last record (or an empty one if SERVO holds
+/// `mtx_data`) with mode `FailSafe`, the arm status now, and the tick.
+pub(crate) fn log_fail_safe_step(sh: &Shared, step: u8) {
+    let mut rec = match sh.data.try_lock() {
+        Some(d) => *d.cycle.servo.log_record(),
+        None => LogRecord::ZERO,
+    };
+    rec.mode = LogMode::FailSafe;
+    rec.fail_safe_step = step;
+    rec.status = crate::io::arm_status(sh);
+    rec.alarms |= alarm::FAIL_SAFE;
+    rec.timing = LogTiming {
+        tick: sh.tick.load(Acquire),
+        start_ns: u64::try_from(sh.now_ns()).unwrap_or(0),
+        wakeup_ns: 0,
+        exec_ns: 0,
+    };
+    let mut buf = [0u8; LogRecord::SIZE];
+    rec.encode(&mut buf);
+    sh.simlog.push_overwrite(&buf);
 }

@@ -86,6 +86,7 @@ fn render(sh: &Shared, out: &mut [u8]) -> usize {
     };
     let (rtf_out_len, _, rtf_out_dropped) = sh.rtf_out.counts();
     let (rtf_in_len, _, _) = sh.rtf_in.counts();
+    let simlog = sh.simlog.counts();
     let summary = {
         let mut st = sh.stats.lock();
         let c = &mut st.counters;
@@ -157,6 +158,9 @@ fn render(sh: &Shared, out: &mut [u8]) -> usize {
         writeln!(w, "rtf_in.queued: {rtf_in_len}")?;
         writeln!(w, "rtf_out.queued: {rtf_out_len}")?;
         writeln!(w, "rtf_out.capacity: {RTF_FRAMES}")?;
+        writeln!(w, "simlog.queued: {}", simlog.0)?;
+        writeln!(w, "simlog.pushed: {}", simlog.1)?;
+        writeln!(w, "simlog.dropped: {}", simlog.2)?;
         writeln!(w, "answers_sent: {}", sh.answers_sent.load(Relaxed))?;
         writeln!(
             w,

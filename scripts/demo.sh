@@ -55,7 +55,7 @@ trap - EXIT
 between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | tr -d "\r" | grep -v -- "$1-"; }
 between HAP-STATS > "$results/hap_stats.txt"
 between HAP-PROTO > "$results/proto_interface.txt"
-between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d > "$results/simlog.bin" 2>/dev/null || true
+between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d 2>/dev/null | gzip -dc > "$results/simlog.bin" 2>/dev/null || true
 if [ -s "$results/simlog.bin" ]; then
   "$HAP_ROOT/userspace/target/release/hapctl" analyze "$results/simlog.bin" --stats "$results/hap_stats.txt" --out "$results/plots" || true
 fi

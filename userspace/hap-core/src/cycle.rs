@@ -66,6 +66,7 @@ impl ServoCycle {
             vpr.valid = false;
         }
         let mut vp = *self.servo.step(inputs, config, &vpr, mode);
+        self.servo.log_link(&est);
         vp.coupling_wrench = fade_wrench(&vp.coupling_wrench, est.link_gain);
         vp.status |= est.status;
         CycleResult {

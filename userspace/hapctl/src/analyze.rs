@@ -191,7 +191,7 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE)?;
-    let coupling: Vec<f64> = recs.iter().map(|r| r.coupling_force.to_f64()).collect();
+    let coupling: Vec<f64> = recs.iter().map(|r| r.coupling_force.norm().to_f64()).collect();
     let user: Vec<f64> = recs
         .iter()
         .map(|r| {

@@ -61,14 +61,19 @@ enum Cmd {
         #[command(subcommand)]
         cmd: SimCmd,
     },
-    /// Capture the simulator's position log (/dev/hap_simlog).
+    /// Record the simulator's position log (/dev/hap_simlog) for the whole
+    /// session: drains it until the module's fail-safe closes it (or
+    /// --cycles), then prints how many records the ring dropped.
     Log {
         /// Output file (binary records, as read); default stdout as CSV.
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Stop after this many records (default: until interrupted or EOF).
+        /// Stop after this many records (default: until end of file).
         #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
         cycles: Option<u64>,
+        /// Also write the end summary (records, dropped_records, ...) there.
+        #[arg(long)]
+        summary: Option<PathBuf>,
     },
     /// Off-line analysis: plots (PNG and SVG) from a captured log.
     #[cfg(feature = "analyze")]
@@ -255,7 +260,17 @@ fn run(cli: Cli) -> Result<(), String> {
                 Ok(())
             }
         },
-        Cmd::Log { out, cycles } => simlog::capture(&dev(d, "hap_simlog"), out.as_deref(), cycles),
+        Cmd::Log {
+            out,
+            cycles,
+            summary,
+        } => simlog::capture(
+            &dev(d, "hap_simlog"),
+            out.as_deref(),
+            cycles,
+            &dev(d, "hap_stats"),
+            summary.as_deref(),
+        ),
         #[cfg(feature = "analyze")]
         Cmd::Analyze { log, out, stats } => analyze::run(&log, &out, stats.as_deref()),
         #[cfg(feature = "analyze")]
