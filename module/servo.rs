@@ -22,6 +22,8 @@ use kernel::sync::atomic::{Acquire, Relaxed, Release};
 
 /// SERVO's thread body.
 pub(crate) fn servo_main(sh: &Shared) {
+    // The protocol session, for the log (kept when the lock is busy).
+    let mut session = 0u16;
     while !kthread::should_stop() && !sh.is_stopping() {
         sh.servo_waiting.store(true, Release);
         let w = sh.cycle_start.wait_timeout(100);
@@ -45,6 +47,9 @@ pub(crate) fn servo_main(sh: &Shared) {
         drop(data);
 
         inject_overrun(sh);
+        if let Some(p) = sh.proto.try_lock() {
+            session = p.session();
+        }
         let end_ns = sh.now_ns();
         sh.servo_end_ns.store(end_ns, Release);
         // The position log, with this cycle's timing (pushed after the
@@ -54,6 +59,7 @@ pub(crate) fn servo_main(sh: &Shared) {
             start_ns: u64::try_from(start_ns).unwrap_or(0),
             wakeup_ns: ns_u32(start_ns.saturating_sub(expiry_ns)),
             exec_ns: ns_u32(end_ns.saturating_sub(start_ns)),
+            session,
         };
         push_log(sh, &rec);
         sh.servo_done_tick.store(tick, Release);

@@ -80,7 +80,7 @@ check_num "bridge: second client's datagrams dropped as stray" "$(gv proto_inter
 check_num "module: nothing malformed reached it" "$(gv hap_stats.txt frames_rejected)" '==' 0
 check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
 echo "# module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses) (emulation noise), max consecutive $(gv hap_stats.txt max_consecutive_misses), answers sent $(gv hap_stats.txt answers_sent)"
-check_num "simulator log captured (records)" "$(( $(stat -c %s "$results/simlog.bin" 2>/dev/null || echo 0) / 552 ))" '>=' 100
+check_num "simulator log captured (records)" "$(( $(stat -c %s "$results/simlog.bin" 2>/dev/null || echo 0) / 560 ))" '>=' 100
 problems=$(grep -E "$HAP_SPLAT_RE" "$qlog" || true)
 [ -z "$problems" ] && ok "no kernel warning in the guest log" || nok "kernel problems: $problems"
 grep -q 'HAPTEST-RESULT rc=0' "$qlog" && ok "guest side passed (launch script start/stop)" || nok "guest side failed: $(grep -E 'not ok|HAPTEST-RESULT' "$qlog" | head -5)"

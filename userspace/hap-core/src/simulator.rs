@@ -292,8 +292,10 @@ impl LogMode {
 /// | 536 | 8 | kernel: cycle start, ns since insmod (u64) |
 /// | 544 | 4 | kernel: wake-up latency, ns (u32, saturating) |
 /// | 548 | 4 | kernel: execution time, ns (u32, saturating) |
+/// | 552 | 2 | kernel: protocol session id (0: no session) |
+/// | 554 | 6 | reserved (0) |
 ///
-/// The last 24 bytes ([`LogRecord::TIMING`]) are filled by the kernel's
+/// The last 32 bytes ([`LogRecord::TIMING`]) are filled by the kernel's
 /// SERVO thread and are 0 in a host replay; everything before is the servo
 /// step's own output, bit for bit the same on the host.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -337,6 +339,8 @@ pub struct LogTiming {
     pub wakeup_ns: u32,
     /// SERVO's execution time, ns.
     pub exec_ns: u32,
+    /// The protocol session open at the cycle (0: none).
+    pub session: u16,
 }
 
 impl LogTiming {
@@ -345,6 +349,7 @@ impl LogTiming {
         start_ns: 0,
         wakeup_ns: 0,
         exec_ns: 0,
+        session: 0,
     };
 }
 
@@ -357,13 +362,13 @@ pub enum LogDecodeError {
 }
 
 impl LogRecord {
-    pub const SIZE: usize = 552;
+    pub const SIZE: usize = 560;
     pub const MAGIC: [u8; 4] = *b"HAPL";
     pub const VERSION: u16 = 2;
     /// `vpr_age_cycles` when no VPr has been received.
     pub const NO_VPR: u32 = u32::MAX;
     /// Byte range of the kernel's timing fields.
-    pub const TIMING: core::ops::Range<usize> = 528..552;
+    pub const TIMING: core::ops::Range<usize> = 528..560;
 
     pub const ZERO: LogRecord = LogRecord {
         flags: 0,
@@ -423,6 +428,8 @@ impl LogRecord {
         w.put(&self.timing.start_ns.to_le_bytes());
         w.put(&self.timing.wakeup_ns.to_le_bytes());
         w.put(&self.timing.exec_ns.to_le_bytes());
+        w.put(&self.timing.session.to_le_bytes());
+        w.put(&[0u8; 6]);
     }
 
     pub fn decode(buf: &[u8; LogRecord::SIZE]) -> Result<LogRecord, LogDecodeError> {
@@ -461,6 +468,7 @@ impl LogRecord {
             start_ns: u64::from_le_bytes(r.arr()),
             wakeup_ns: u32::from_le_bytes(r.arr()),
             exec_ns: u32::from_le_bytes(r.arr()),
+            session: u16::from_le_bytes(r.arr()),
         };
         Ok(LogRecord {
             flags,

@@ -347,6 +347,7 @@ fn log_record_v2_layout_matches_its_documentation() {
             start_ns: 0x6162_6364_6566_6768,
             wakeup_ns: 0x7172_7374,
             exec_ns: 0x8182_8384,
+            session: 0x9192,
         },
     };
     let mut b = [0u8; LogRecord::SIZE];
@@ -379,11 +380,13 @@ fn log_record_v2_layout_matches_its_documentation() {
     assert_eq!(u32_at(508), r.alarms);
     assert_eq!(fx_at(512), r.po_energy);
     assert_eq!(fx_at(520), r.link_gain);
-    assert_eq!(LogRecord::TIMING, 528..552);
+    assert_eq!(LogRecord::TIMING, 528..560);
     assert_eq!(u64_at(528), r.timing.tick);
     assert_eq!(u64_at(536), r.timing.start_ns);
     assert_eq!(u32_at(544), r.timing.wakeup_ns);
     assert_eq!(u32_at(548), r.timing.exec_ns);
+    assert_eq!(u16::from_le_bytes([b[552], b[553]]), 0x9192);
+    assert_eq!(&b[554..560], &[0u8; 6]);
     assert_eq!(LogRecord::decode(&b), Ok(r));
     let mut bad = b;
     bad[24] = 3;

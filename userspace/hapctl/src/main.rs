@@ -75,7 +75,8 @@ enum Cmd {
         #[arg(long)]
         summary: Option<PathBuf>,
     },
-    /// Off-line analysis: plots (PNG and SVG) from a captured log.
+    /// Off-line analysis of a whole run: figures (PNG and SVG), events,
+    /// analysis.txt and a one-page report (summary.html).
     #[cfg(feature = "analyze")]
     Analyze {
         /// A log captured by `hapctl log --out`.
@@ -83,10 +84,17 @@ enum Cmd {
         /// Output directory (created).
         #[arg(long)]
         out: PathBuf,
-        /// A dump of /dev/hap_stats (`cat /dev/hap_stats > FILE`) for the
-        /// cycle-time and wake-up latency histograms.
+        /// A dump of /dev/hap_stats (`cat /dev/hap_stats > FILE`): the
+        /// period and the module's counters for the report.
         #[arg(long)]
         stats: Option<PathBuf>,
+        /// A dump of /dev/hap_hist: the latency histogram.
+        #[arg(long)]
+        hist: Option<PathBuf>,
+        /// `key: value` files shown in the report as they are (the client's
+        /// summary.txt, `hapctl log --summary`); repeatable.
+        #[arg(long)]
+        summary: Vec<PathBuf>,
     },
     /// Charts (PNG and SVG) from CSV files, for the benchmark scripts.
     #[cfg(feature = "analyze")]
@@ -272,7 +280,21 @@ fn run(cli: Cli) -> Result<(), String> {
             summary.as_deref(),
         ),
         #[cfg(feature = "analyze")]
-        Cmd::Analyze { log, out, stats } => analyze::run(&log, &out, stats.as_deref()),
+        Cmd::Analyze {
+            log,
+            out,
+            stats,
+            hist,
+            summary,
+        } => analyze::run(
+            &log,
+            &out,
+            &analyze::Inputs {
+                stats: stats.as_deref(),
+                hist: hist.as_deref(),
+                summaries: &summary,
+            },
+        ),
         #[cfg(feature = "analyze")]
         Cmd::Plot {
             kind,
