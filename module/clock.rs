@@ -208,7 +208,10 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
         sh.ticks_not_posted.load(Relaxed)
     );
     for (i, action) in FAIL_SAFE_SEQUENCE.iter().enumerate() {
-        crate::simulator::log_fail_safe_step(sh, u8::try_from(i.saturating_add(1)).unwrap_or(u8::MAX));
+        crate::simulator::log_fail_safe_step(
+            sh,
+            u8::try_from(i.saturating_add(1)).unwrap_or(u8::MAX),
+        );
         match action {
             FailSafeAction::InhibitMotorCommands => {
                 // The line is cut at once; SERVO's data is updated now if
