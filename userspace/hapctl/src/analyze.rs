@@ -113,7 +113,11 @@ pub fn run(log: &Path, out: &Path, inputs: &Inputs<'_>) -> Result<(), String> {
     let mut summaries = Vec::new();
     for p in inputs.summaries {
         let text = std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?;
-        summaries.push((p.display().to_string(), text));
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().to_string())
+            .unwrap_or_else(|| p.display().to_string());
+        summaries.push((name, text));
     }
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
 
@@ -1262,7 +1266,7 @@ fn report_html(
     } else {
         h.push_str(" No record dropped: the log covers every cycle.");
     }
-    h.push_str("</p><h2>Figures</h2>");
+    h.push_str("</p><h2>The run in figures</h2><p>Marker colours on every time axis: power (green), session (blue), link (orange), degraded (purple), misses (red), fail-safe (black), dropped records (grey).</p>");
     h.push_str(&kv_table(analysis, |_| true));
     for (name, text) in summaries {
         let _ = write!(h, "<table><tr><th colspan=2>{}</th></tr>", esc(name));
