@@ -816,7 +816,7 @@ impl Line {
             name: name.into(),
             colour,
             points,
-            width: 2,
+            width: 1,
             dashed: false,
             points_only: false,
         }
@@ -941,7 +941,7 @@ fn latency_histogram(text: &str) -> Figure {
             "exec" => "execution time",
             _ => "period jitter",
         };
-        lines.push(Line::new(label, c, crate::plot::steps(&pts, 0.5)));
+        lines.push(Line::new(label, c, hist_steps(&pts, 0.5)));
     }
     let xmax = lines
         .iter()
@@ -968,6 +968,30 @@ fn latency_histogram(text: &str) -> Figure {
         markers: vec![],
         columns: 1,
     }
+}
+
+/// The outline of 1 µs buckets `(start, count)`: each bucket [x, x + 1) at
+/// its count, down to `floor` between non-adjacent buckets.
+fn hist_steps(buckets: &[(f64, f64)], floor: f64) -> Vec<(f64, f64)> {
+    let mut b = buckets.to_vec();
+    b.sort_by(|a, c| a.0.total_cmp(&c.0));
+    let mut out = Vec::with_capacity(b.len() * 4);
+    let mut end: Option<f64> = None;
+    for (x, n) in b {
+        if end != Some(x) {
+            if let Some(e) = end {
+                out.push((e, floor));
+            }
+            out.push((x, floor));
+        }
+        out.push((x, n.max(floor)));
+        out.push((x + 1.0, n.max(floor)));
+        end = Some(x + 1.0);
+    }
+    if let Some(e) = end {
+        out.push((e, floor));
+    }
+    out
 }
 
 /// At most `MAX_POINTS` points: per bucket, its minimum and maximum in
@@ -1015,6 +1039,22 @@ pub fn reduce(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
         }
     }
     out
+}
+
+/// A dense point series as `MAX_POINTS / 2` bars: per bucket of
+/// consecutive points, (first x, min y, max y) of its finite values.
+pub fn range_bars(points: &[(f64, f64)]) -> Vec<(f64, f64, f64)> {
+    let per = points.len().div_ceil(MAX_POINTS / 2).max(1);
+    points
+        .chunks(per)
+        .filter_map(|c| {
+            let f = c.iter().filter(|p| p.1.is_finite());
+            let lo = f.clone().map(|p| p.1).fold(f64::INFINITY, f64::min);
+            let hi = f.clone().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
+            let x = f.map(|p| p.0).next()?;
+            Some((x, lo, hi))
+        })
+        .collect()
 }
 
 /// Contiguous finite runs of a series (NaN breaks it).
@@ -1080,11 +1120,15 @@ where
         .y_label_area_size(if p.lanes.is_some() { 90 } else { 70 });
     let (x0, x1) = f.x;
     let (y0, y1) = p.y;
+    let x_decimals = tick_decimals(x1 - x0);
+    let x_fmt = move |v: &f64| tick_label(*v, x_decimals);
     if p.log_y {
         let mut ch = b.build_cartesian_2d(x0..x1, (y0..y1).log_scale())?;
         ch.configure_mesh()
             .x_desc(&f.x_label)
             .y_desc(&p.y_label)
+            .y_label_formatter(&|v| log_label(*v))
+            .x_label_formatter(&x_fmt)
             .light_line_style(WHITE.mix(0.0))
             .draw()?;
         let floor = y0;
@@ -1110,6 +1154,7 @@ where
         mesh.x_desc(&f.x_label)
             .y_desc(&p.y_label)
             .y_label_formatter(&fmt)
+            .x_label_formatter(&x_fmt)
             .light_line_style(WHITE.mix(0.0));
         if p.lanes.is_some() {
             mesh.y_labels(LANES.len() * 2 + 1);
@@ -1155,11 +1200,22 @@ where
             .collect();
         let style = c.stroke_width(l.width);
         if l.points_only {
-            let anno = ch.draw_series(
-                pts.iter()
-                    .filter(|p| p.1.is_finite())
-                    .map(|p| Circle::new(*p, 3, c.filled())),
-            )?;
+            let anno = if l.points.len() > MAX_POINTS {
+                // Dense: each bucket's range as a vertical bar (min to max).
+                let bars: Vec<PathElement<(f64, f64)>> = range_bars(&l.points)
+                    .into_iter()
+                    .map(|(x, lo, hi)| {
+                        PathElement::new(vec![(x, clampv(lo)), (x, clampv(hi))], c.stroke_width(1))
+                    })
+                    .collect();
+                ch.draw_series(bars)?
+            } else {
+                ch.draw_series(
+                    pts.iter()
+                        .filter(|p| p.1.is_finite())
+                        .map(|p| Circle::new(*p, 3, c.filled())),
+                )?
+            };
             if !l.name.is_empty() {
                 anno.label(l.name.as_str())
                     .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.filled()));
@@ -1209,6 +1265,16 @@ fn tick_label(v: f64, decimals: usize) -> String {
         s.trim_start_matches('-').to_string()
     } else {
         s
+    }
+}
+
+/// A log-axis label: 1000, 10, 0.01.
+fn log_label(v: f64) -> String {
+    if v >= 1.0 || v <= 0.0 || !v.is_finite() {
+        format!("{v:.0}")
+    } else {
+        let d = (-v.log10()).ceil().clamp(0.0, 12.0) as usize;
+        format!("{v:.d$}")
     }
 }
 
@@ -1485,8 +1551,12 @@ mod tests {
         for f in &figs {
             for p in &f.panels {
                 for l in &p.lines {
-                    // Both the full series and what is drawn after reduction.
-                    for (x, y) in l.points.iter().chain(reduce(&l.points).iter()) {
+                    // The full series and what is drawn after reduction.
+                    let bars: Vec<(f64, f64)> = range_bars(&l.points)
+                        .into_iter()
+                        .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)])
+                        .collect();
+                    for (x, y) in l.points.iter().chain(reduce(&l.points).iter()).chain(&bars) {
                         assert!(
                             (f.x.0..=f.x.1).contains(x),
                             "{}/{}/{}: x {x} outside {:?}",
@@ -1529,6 +1599,28 @@ mod tests {
         // The torque limits are on the torque axes.
         let tq = figs.iter().find(|f| f.name == "torques").unwrap();
         assert!(tq.panels[1].y.1 >= 25.0 && tq.panels[1].y.0 <= -20.0);
+    }
+
+    #[test]
+    fn histogram_buckets_are_one_microsecond_wide() {
+        let s = hist_steps(&[(5.0, 10.0), (3.0, 2.0), (4.0, 7.0)], 0.5);
+        assert_eq!(
+            s,
+            vec![
+                (3.0, 0.5),
+                (3.0, 2.0),
+                (4.0, 2.0),
+                (4.0, 7.0),
+                (5.0, 7.0),
+                (5.0, 10.0),
+                (6.0, 10.0),
+                (6.0, 0.5)
+            ]
+        );
+        let s = hist_steps(&[(2.0, 4.0), (40.0, 1.0)], 0.5);
+        assert!(s.contains(&(3.0, 0.5)) && s.contains(&(40.0, 0.5)) && s.contains(&(41.0, 1.0)));
+        assert_eq!(log_label(10000.0), "10000");
+        assert_eq!(log_label(0.01), "0.01");
     }
 
     #[test]

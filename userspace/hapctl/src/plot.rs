@@ -126,7 +126,7 @@ const COLOURS: [RGBColor; 6] = [
 
 /// Histogram steps: bucket [x, x + w) at height y, w the smallest gap
 /// between bucket starts (1 for µs histograms).
-pub(crate) fn steps(points: &[(f64, f64)], floor: f64) -> Vec<(f64, f64)> {
+fn steps(points: &[(f64, f64)], floor: f64) -> Vec<(f64, f64)> {
     let mut p: Vec<(f64, f64)> = points.to_vec();
     p.sort_by(|a, b| a.0.total_cmp(&b.0));
     let w = p
