@@ -632,6 +632,14 @@ impl<'a> Run<'a> {
             }),
             (3, |r| r.mode == LogMode::Degraded),
         ];
+        // Dropped records: the span they covered.
+        for e in self.events.iter().filter(|e| e.kind == EventKind::Dropped) {
+            let t1 = e.t + e.count as f64 * self.period_s;
+            let lane = EventKind::Dropped.lane() as f64;
+            let mut l = Line::new("", RGBColor(160, 160, 160), vec![(e.t, lane), (t1, lane)]);
+            l.width = 6;
+            lines.push(l);
+        }
         for (lane, on) in spans {
             let pts: Vec<(f64, f64)> = self
                 .t
