@@ -33,7 +33,7 @@ pub(crate) struct ServoData {
     pub(crate) config: ServoConfig,
 }
 
-/// Position-log records kept until read (about 2 s at 1 kHz; 552-byte
+/// Position-log records kept until read (about 2 s at 1 kHz; 560-byte
 /// records, one ~1.1 MB allocation).
 pub(crate) const SIMLOG_RECORDS: usize = 2048;
 

@@ -7,7 +7,7 @@
 //!   gets `EINVAL` and a dmesg line with its line and column. A single line
 //!   `live fx fy fz tx ty tz` (N, N·m) sets a live effort that overrides the
 //!   sequence; `live off` ends it; `clear` unloads the sequence.
-//! - `/dev/hap_simlog`: the position log, whole `LogRecord`s (288 bytes
+//! - `/dev/hap_simlog`: the position log, whole `LogRecord`s (560 bytes
 //!   each, hap-core's layout); a read returns as many whole records as fit,
 //!   blocking until one is there (`EAGAIN` with `O_NONBLOCK`, end of file
 //!   after the fail-safe). When nobody reads, the oldest records are dropped
@@ -155,6 +155,7 @@ pub(crate) fn log_fail_safe_step(sh: &Shared, step: u8) {
         start_ns: u64::try_from(sh.now_ns()).unwrap_or(0),
         wakeup_ns: 0,
         exec_ns: 0,
+        session: 0,
     };
     let mut buf = [0u8; LogRecord::SIZE];
     rec.encode(&mut buf);
