@@ -83,7 +83,7 @@ echo
 echo "=== demo finished (accelerator: $mode; under TCG timing figures are emulation artefacts)"
 grep -E '^(sample_rate_hz|loss_ratio|rtt_ms_mean|coupling_error_mean_m|handle_travel_m|coupled_travel_m):' "$results/summary.txt" 2>/dev/null | sed 's/^/  client  /'
 grep -E '^(cycles|misses|max_consecutive_misses|wakeup.p99_us|exec.p99_us|frames_in|answers_sent|state):' "$results/hap_stats.txt" | sed 's/^/  module  /'
-grep -E '^(records|dropped_records|misses_located|fail_safe_steps|max_coupling_force_n|max_handle_speed_m_s):' "$results/plots/analysis.txt" 2>/dev/null | sed 's/^/  log     /'
+grep -E '^(records|dropped_records|misses_located|fail_safe_steps|max_coupling_force_n|max_handle_speed_m_s):' "$results/plots/analysis.txt" 2>/dev/null | sed 's/^/  log     /' || true
 echo "results: $results (run.csv, summary.txt, hap_stats.txt, hap_hist.txt, proto_interface.txt, simlog.bin, plots/)"
 if [ -n "$report" ]; then echo "report: $report"; fi
 if [ -n "$cpid" ] && kill -0 "$cpid" 2>/dev/null; then
