@@ -65,9 +65,9 @@ for _ in $(seq 1800); do kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
 if [ -n "$cpid" ]; then trap 'kill $cpid 2>/dev/null || true' EXIT; else trap - EXIT; fi
 between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | tr -d "\r" | grep -v -- "$1-"; }
 between HAP-STATS > "$results/hap_stats.txt"
-between HAP-HIST > "$results/hap_hist.txt"
+between HAP-HIST > "$results/hap_hist.txt" || true
 between HAP-PROTO > "$results/proto_interface.txt"
-between HAP-SIMLOG-SUMMARY > "$results/simlog.txt"
+between HAP-SIMLOG-SUMMARY > "$results/simlog.txt" || true
 between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d 2>/dev/null | gzip -dc > "$results/simlog.bin" 2>/dev/null || true
 report=""
 if [ -s "$results/simlog.bin" ]; then
