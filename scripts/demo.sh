@@ -71,9 +71,12 @@ between HAP-SIMLOG-SUMMARY > "$results/simlog.txt" || true
 between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d 2>/dev/null | gzip -dc > "$results/simlog.bin" 2>/dev/null || true
 report=""
 if [ -s "$results/simlog.bin" ]; then
+  extra=()
+  [ -s "$results/hap_stats.txt" ] && extra+=(--stats "$results/hap_stats.txt")
+  [ -s "$results/hap_hist.txt" ] && extra+=(--hist "$results/hap_hist.txt")
+  for f in summary.txt simlog.txt; do [ -s "$results/$f" ] && extra+=(--summary "$results/$f"); done
   if "$HAP_ROOT/userspace/target/release/hapctl" analyze "$results/simlog.bin" --out "$results/plots" \
-      --stats "$results/hap_stats.txt" --hist "$results/hap_hist.txt" \
-      --summary "$results/summary.txt" --summary "$results/simlog.txt" > "$results/analysis.log" 2>&1; then
+      "${extra[@]}" > "$results/analysis.log" 2>&1; then
     report="$results/plots/summary.html"
   else
     log "hapctl analyze failed: $(tail -3 "$results/analysis.log")"
