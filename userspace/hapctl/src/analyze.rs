@@ -31,7 +31,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use hap_core::arm::TAU_MAX;
-use hap_core::control::V_MAX;
+use hap_core::control::BRAKE_START;
 use hap_core::simulator::{LogMode, LogRecord};
 use hap_core::stats::{histogram_entries, key_values, parse_summary, StatsSummary, HIST_SERIES};
 use hap_core::vp::status;
@@ -53,6 +53,15 @@ pub(crate) fn register_font() {
 }
 
 type DynErr = Box<dyn std::error::Error>;
+
+/// The largest |q̇ᵢ| / `BRAKE_START`ᵢ of a record (1: the velocity brake's
+/// threshold).
+fn joint_speed_ratio(r: &LogRecord) -> f64 {
+    r.qd.iter()
+        .zip(BRAKE_START.iter())
+        .map(|(q, b)| q.to_f64().abs() / b.to_f64().max(1e-9))
+        .fold(0.0, f64::max)
+}
 
 /// A yes/no property of a record.
 type RecordTest = fn(&LogRecord) -> bool;
@@ -547,21 +556,27 @@ impl<'a> Run<'a> {
         f.columns = 2;
         out.push(f);
 
-        // Handle speed against its bound.
+        // Speeds: the handle's, and the joints' against the velocity
+        // brake's thresholds (`control::BRAKE_START`, joint space).
         let v = self.series("|v| handle", RGBColor(30, 60, 200), |r| {
             r.handle_velocity.norm().to_f64()
         });
-        // Log scale: a walking hand (cm/s) and the bound (1.5 m/s) both read.
-        let mut speed = Panel::fit(
-            "linear speed (log scale; grey: V_MAX, braking above)",
-            "m/s",
-            vec![v],
-            vec![(V_MAX.to_f64(), "V_MAX (braking above)".into())],
+        let mut hand = Panel::fit("handle linear speed (log scale)", "m/s", vec![v], vec![]);
+        hand.log_y = true;
+        hand.y = log_range(&hand);
+        hand.y.0 = hand.y.0.max(hand.y.1 * 1e-6);
+        let ratio = self.series(
+            "max over joints |q̇ᵢ| / BRAKE_STARTᵢ",
+            RGBColor(200, 30, 30),
+            joint_speed_ratio,
         );
-        speed.log_y = true;
-        speed.y = log_range(&speed);
-        speed.y.0 = speed.y.0.max(V_MAX.to_f64() * 1e-5);
-        out.push(self.figure("speed", "Handle speed", vec![speed]));
+        let joints = Panel::fit(
+            "joint speeds against the velocity brake (grey: 1 = brake threshold)",
+            "ratio",
+            vec![ratio],
+            vec![(1.0, "brake threshold".into())],
+        );
+        out.push(self.figure("speed", "Speeds and their bound", vec![hand, joints]));
 
         // Energy at the coupling port.
         let power: Vec<f64> = self
@@ -782,9 +797,13 @@ impl<'a> Run<'a> {
         );
         let _ = writeln!(
             s,
-            "max_handle_speed_m_s: {:.4} (V_MAX {})",
-            max(&|r| r.handle_velocity.norm().to_f64()),
-            short(V_MAX.to_f64())
+            "max_handle_speed_m_s: {:.4}",
+            max(&|r| r.handle_velocity.norm().to_f64())
+        );
+        let _ = writeln!(
+            s,
+            "max_joint_speed_over_brake_start: {:.3} (the velocity brake acts above 1)",
+            max(&|r| joint_speed_ratio(r))
         );
         for (j, lim) in TAU_MAX.iter().enumerate() {
             let _ = writeln!(
@@ -1683,7 +1702,9 @@ mod tests {
                 xs.push((stroke.to_uppercase(), v[0].0));
             }
         }
-        assert_eq!(xs.len(), f.markers.len(), "{xs:?}");
+        // Every panel has every marker: check the first panel's.
+        assert_eq!(xs.len(), f.markers.len() * f.panels.len(), "{xs:?}");
+        xs.truncate(f.markers.len());
         // Each in its kind's colour; pixel x linear in time (fit on the
         // first and last event, check all).
         for (m, (stroke, _)) in f.markers.iter().zip(&xs) {
