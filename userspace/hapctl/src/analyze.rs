@@ -10,7 +10,8 @@
 //! - `forces`: coupling force on the handle and the user's force, N, one
 //!   panel each (their ranges differ by orders of magnitude);
 //! - `torques`: per joint, commanded and applied torque against ±`arm::TAU_MAX`;
-//! - `speed`: handle speed against `control::V_MAX`;
+//! - `speed`: handle speed, and joint speeds against the velocity brake's
+//!   thresholds (`control::BRAKE_START`);
 //! - `energy`: power at the coupling port (coupling force · handle velocity)
 //!   and its running sum, next to the passivity observer's energy;
 //! - `events`: power, session, link fading, degraded mode, misses and
