@@ -68,7 +68,7 @@ between HAP-STATS > "$results/hap_stats.txt"
 between HAP-HIST > "$results/hap_hist.txt" || true
 between HAP-PROTO > "$results/proto_interface.txt"
 between HAP-SIMLOG-SUMMARY > "$results/simlog.txt" || true
-between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d 2>/dev/null | gzip -dc > "$results/simlog.bin" 2>/dev/null || true
+between HAP-SIMLOG | sed -E 's/\[ *[0-9]+\.[0-9]+\] .*$//' | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d 2>/dev/null | gzip -dc > "$results/simlog.bin" 2>/dev/null || true
 report=""
 if [ -s "$results/simlog.bin" ]; then
   extra=()

@@ -57,7 +57,7 @@ sv() { sed -n "s/^$1: //p" "$results/summary.txt" 2>/dev/null | head -1; }
 between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | tr -d "\r" | grep -v -- "$1-"; }
 between HAP-STATS > "$results/hap_stats.txt"
 between HAP-PROTO > "$results/proto_interface.txt"
-between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d 2>/dev/null | gzip -dc > "$results/simlog.bin" 2>/dev/null
+between HAP-SIMLOG | sed -E 's/\[ *[0-9]+\.[0-9]+\] .*$//' | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d 2>/dev/null | gzip -dc > "$results/simlog.bin" 2>/dev/null
 gv() { sed -n "s/^$2: *\([^ ]*\).*/\1/p" "$results/$1" | head -1; }
 
 [ "$crc" = 0 ] && ok "the test client ran ${duration} s against the guest" || nok "the test client failed (exit $crc): $(tail -3 "$results/client.txt")"

@@ -37,7 +37,11 @@ wait "$logpid"
 expect "the position log recorder ended cleanly" "$?" = 0
 echo "HAP-SIMLOG-SUMMARY-BEGIN"; cat /tmp/simlog.txt; echo "HAP-SIMLOG-SUMMARY-END"
 echo "HAP-HIST-BEGIN"; cat /dev/hap_hist; echo "HAP-HIST-END"
+# Kernel messages on the console would cut into the base64 lines (the host
+# also strips "[ time] message" tails).
+dmesg -n 1 2>/dev/null
 echo "HAP-SIMLOG-BEGIN"; gzip -1 -c /tmp/sim.bin | base64; echo "HAP-SIMLOG-END"
+dmesg -n 7 2>/dev/null
 check "launch script stops cleanly" hapticctrl.sh stop
 check_not "the module is unloaded" sh -c 'grep -q ^hapticctrl /proc/modules'
 finish
