@@ -13,11 +13,7 @@
 //! produce now), six joint torques each in µN·m.
 
 use crate::{
-    hap_core::{
-        fixed::Joints,
-        io::Gate,
-        vp::status,
-    },
+    hap_core::{fixed::Joints, io::Gate, vp::status},
     shared::{DeviceFile, Shared},
 };
 use core::fmt::Write;

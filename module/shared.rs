@@ -9,8 +9,7 @@ use crate::{
     completion::Completion,
     hap_core::{
         config::ServoConfig, cycle::ServoCycle, io::MotorLine, proto_in::ProtoIn,
-        protocol::MAX_FRAME_LEN,
-        simulator::LogRecord, stats::HapStats,
+        protocol::MAX_FRAME_LEN, simulator::LogRecord, stats::HapStats,
     },
     rtf::{RtFifo, RtfInCounters, RTF_FRAMES},
     rwsem::RwSem,
