@@ -200,6 +200,10 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
         sh.ticks_not_posted.load(Relaxed)
     );
     for (i, action) in FAIL_SAFE_SEQUENCE.iter().enumerate() {
+        crate::simulator::log_fail_safe_step(
+            sh,
+            u8::try_from(i.saturating_add(1)).unwrap_or(u8::MAX),
+        );
         match action {
             // The first two steps act on hap_io's motor line, outside every
             // lock: the motors apply 0 from here on, whether SERVO is

@@ -4,8 +4,9 @@
 //! servo cycle under `mtx_data`: takes the effort commands handed over since
 //! its last cycle, then hap-core's `ServoCycle::run` (get_measures →
 //! logical/physical state → cartesian_control → send_commands →
-//! simulate_arm) between the synchronizer's `receive_vp` and `send_vp`, then
-//! logs the simulator's position. The main and the auxiliary (degraded) path
+//! simulate_arm) between the synchronizer's `receive_vp` and `send_vp`; after
+//! `mtx_data` is released it logs the simulator's position with the cycle's
+//! timing. The main and the auxiliary (degraded) path
 //! are the same code (spec §3.5); CLOCK's supervisor picks the mode through
 //! the cycle handshake (`hap_core::handshake`); in `FailSafe` SERVO runs
 //! nothing and leaves.
@@ -24,7 +25,7 @@ use crate::{
     hap_core::{
         clock::Mode,
         servo::{PowerRequest, ServoInputs, ServoMode},
-        simulator::LogRecord,
+        simulator::{LogRecord, LogTiming},
     },
     kthread::CurrentKThread,
     proto_synchro,
@@ -35,6 +36,8 @@ use kernel::sync::atomic::{Acquire, Relaxed, Release};
 
 /// SERVO's thread body.
 pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Shared) {
+    // The protocol session, for the log (kept when the lock is busy).
+    let mut session = 0u16;
     while !kt.should_stop() && !sh.is_stopping() {
         sh.cycle.set_servo_waiting(true);
         let w = sh.cycle_start.wait_timeout(100);
@@ -55,7 +58,9 @@ pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Shared) {
                 break;
             }
         };
-        sh.servo_start_ns.store(sh.now_ns(), Release);
+        let start_ns = sh.now_ns();
+        let expiry_ns = sh.expiry_ns.load(Acquire);
+        sh.servo_start_ns.store(start_ns, Release);
 
         let mut data = sh.data.lock();
         if inject_fault(kt, sh) == Injected::Hung {
@@ -64,9 +69,24 @@ pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Shared) {
         }
         take_effort(sh, &mut data);
         servo_cycle(sh, &mut data, mode);
+        let mut rec = *data.cycle.servo.log_record();
         drop(data);
 
-        sh.servo_end_ns.store(sh.now_ns(), Release);
+        if let Some(p) = sh.proto.try_lock() {
+            session = p.session();
+        }
+        let end_ns = sh.now_ns();
+        sh.servo_end_ns.store(end_ns, Release);
+        // The position log, with this cycle's timing (pushed after the
+        // cycle so that the execution time includes everything SERVO did).
+        rec.timing = LogTiming {
+            tick: start.tick,
+            start_ns: u64::try_from(start_ns).unwrap_or(0),
+            wakeup_ns: ns_u32(start_ns.saturating_sub(expiry_ns)),
+            exec_ns: ns_u32(end_ns.saturating_sub(start_ns)),
+            session,
+        };
+        push_log(sh, &rec);
         sh.cycle.servo_end(start.tick);
     }
 }
@@ -80,6 +100,21 @@ pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Shared) {
 pub(crate) fn calibrate(sh: &Shared) {
     let mut data = sh.data.lock();
     servo_cycle(sh, &mut data, ServoMode::Main);
+    let rec = *data.cycle.servo.log_record();
+    drop(data);
+    push_log(sh, &rec);
+}
+
+/// Append one record to the position log: refused (counted in
+/// `simlog.dropped`) when the log is full, never waits.
+pub(crate) fn push_log(sh: &Shared, rec: &LogRecord) {
+    let mut buf = [0u8; LogRecord::SIZE];
+    rec.encode(&mut buf);
+    let _ = sh.simlog.push(&buf);
+}
+
+fn ns_u32(ns: i64) -> u32 {
+    u32::try_from(ns.max(0)).unwrap_or(u32::MAX)
 }
 
 fn servo_cycle(sh: &Shared, data: &mut ServoData, mode: ServoMode) {
@@ -105,10 +140,6 @@ fn servo_cycle(sh: &Shared, data: &mut ServoData, mode: ServoMode) {
     if result.extrapolated {
         sh.vpr_extrapolated.add(1, Relaxed);
     }
-    // The simulator's position log: refused (counted) when full, never waits.
-    let mut rec = [0u8; LogRecord::SIZE];
-    data.cycle.servo.log_record().encode(&mut rec);
-    let _ = sh.simlog.push(&rec);
 }
 
 /// What the fault injection did to this cycle.

@@ -85,8 +85,9 @@ pub(crate) fn new_stats(period_us: u32) -> Result<KBox<HapStats>> {
     Ok(st)
 }
 
-/// Position-log records kept (about 4 s at 1 kHz).
-pub(crate) const SIMLOG_RECORDS: usize = 4096;
+/// Position-log records kept until read (about 2 s at 1 kHz; 560-byte
+/// records, one ~1.1 MB allocation).
+pub(crate) const SIMLOG_RECORDS: usize = 2048;
 
 /// Effort handoff records in flight (writers wait for SERVO to take theirs).
 pub(crate) const EFFORT_SLOTS: usize = 2;

@@ -12,12 +12,13 @@
 //!   ring (`Shared::effort`); SERVO takes it at the top of its next cycle
 //!   without waiting, and the `write()` returns once it has (`EBUSY` if
 //!   SERVO does not take it within 100 ms, e.g. after the fail-safe).
-//! - `/dev/hap_simlog`: the position log, whole `LogRecord`s (288 bytes
+//! - `/dev/hap_simlog`: the position log, whole `LogRecord`s (560 bytes
 //!   each, hap-core's layout); a read returns as many whole records as fit,
 //!   blocking until one is there (`EAGAIN` with `O_NONBLOCK`, end of file
 //!   after the fail-safe). SERVO pushes one record per cycle without
 //!   waiting; when nobody reads and the log is full, new records are refused
-//!   (counted in `simlog.dropped`).
+//!   (counted in `simlog.dropped`). Each fail-safe step
+//!   adds a record of mode `FailSafe` ([`log_fail_safe_step`]).
 
 use crate::{
     device::{HapDevice, OpenFile},
@@ -27,7 +28,8 @@ use crate::{
             EffortKeyframe, EffortSample, EFFORT_CAPACITY,
         },
         fixed::{Fx, Vec3, Wrench},
-        simulator::LogRecord,
+        simulator::{LogMode, LogRecord, LogTiming},
+        vp::alarm,
     },
     ring::Refused,
     shared::{ServoData, Shared},
@@ -36,7 +38,10 @@ use core::sync::atomic::Ordering;
 use kernel::{
     iov::{IovIterDest, IovIterSource},
     prelude::*,
-    sync::{atomic::Release, Arc},
+    sync::{
+        atomic::{Acquire, Release},
+        Arc,
+    },
 };
 
 /// Largest effort-sequence write.
@@ -316,4 +321,33 @@ impl HapDevice for SimLog {
             }
         }
     }
+}
+
+/// Log fail-safe step `step` (1-based, `FAIL_SAFE_SEQUENCE` order) as it
+/// starts: the servo's last record (or an empty one if SERVO holds
+/// `mtx_data`) with mode `FailSafe`, the arm status now, and the tick.
+pub(crate) fn log_fail_safe_step(sh: &Shared, step: u8) {
+    let mut rec = match sh.data.try_lock() {
+        Some(d) => *d.cycle.servo.log_record(),
+        None => LogRecord::ZERO,
+    };
+    rec.mode = LogMode::FailSafe;
+    rec.fail_safe_step = step;
+    // What the motors apply now, read from the line (not SERVO's last record).
+    rec.motor_torque = sh.motor_line.applied();
+    if sh.motor_line.gate() == crate::hap_core::io::Gate::FailSafe {
+        rec.flags |= crate::hap_core::servo::log_flags::LINE_CUT;
+    }
+    rec.status = crate::io::arm_status(sh);
+    rec.alarms |= alarm::FAIL_SAFE;
+    rec.timing = LogTiming {
+        tick: sh.cycle.tick(),
+        start_ns: u64::try_from(sh.now_ns()).unwrap_or(0),
+        wakeup_ns: 0,
+        exec_ns: 0,
+        session: 0,
+    };
+    let mut buf = [0u8; LogRecord::SIZE];
+    rec.encode(&mut buf);
+    let _ = sh.simlog.push(&buf);
 }

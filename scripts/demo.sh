@@ -49,20 +49,50 @@ mode=$(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' "$qlog" | head -1)
 log "guest up (accelerator: $mode, servo period ${period_us} us); controller at 127.0.0.1:$port"
 
 client=("$HAP_ROOT/userspace/target/release/virtuose_demo" --server "127.0.0.1#$port" --key "$key" --duration "$duration" --results "$results")
-if [ "$headless" = 1 ]; then client+=(--headless); else client+=(--http "$http"); log "3D page: http://$http/ (the client prints it too)"; fi
-"${client[@]}" | tee "$results/client.txt"
+cpid=""
+if [ "$headless" = 1 ]; then
+  client+=(--headless)
+  "${client[@]}" | tee "$results/client.txt"
+else
+  # The page stays up after the run and links to the run's report once
+  # hapctl analyze has written it.
+  client+=(--http "$http" --linger 600); log "3D page: http://$http/ (the client prints it too)"
+  "${client[@]}" > >(tee "$results/client.txt") &
+  cpid=$!
+  trap 'kill $qpid $cpid 2>/dev/null || true' EXIT
+  while kill -0 "$cpid" 2>/dev/null && [ ! -s "$results/summary.txt" ]; do sleep 0.5; done
+fi
 
 for _ in $(seq 1800); do kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
-trap - EXIT
+if [ -n "$cpid" ]; then trap 'kill $cpid 2>/dev/null || true' EXIT; else trap - EXIT; fi
 between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | tr -d "\r" | grep -v -- "$1-"; }
 between HAP-STATS > "$results/hap_stats.txt"
+between HAP-HIST > "$results/hap_hist.txt" || true
 between HAP-PROTO > "$results/proto_interface.txt"
-between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d > "$results/simlog.bin" 2>/dev/null || true
+between HAP-SIMLOG-SUMMARY > "$results/simlog.txt" || true
+between HAP-SIMLOG | sed -E 's/\[ *[0-9]+\.[0-9]+\] .*$//' | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d 2>/dev/null | gzip -dc > "$results/simlog.bin" 2>/dev/null || true
+report=""
 if [ -s "$results/simlog.bin" ]; then
-  "$HAP_ROOT/userspace/target/release/hapctl" analyze "$results/simlog.bin" --stats "$results/hap_stats.txt" --out "$results/plots" || true
+  extra=()
+  [ -s "$results/hap_stats.txt" ] && extra+=(--stats "$results/hap_stats.txt")
+  [ -s "$results/hap_hist.txt" ] && extra+=(--hist "$results/hap_hist.txt")
+  for f in summary.txt simlog.txt; do [ -s "$results/$f" ] && extra+=(--summary "$results/$f"); done
+  if "$HAP_ROOT/userspace/target/release/hapctl" analyze "$results/simlog.bin" --out "$results/plots" \
+      "${extra[@]}" > "$results/analysis.log" 2>&1; then
+    report="$results/plots/summary.html"
+  else
+    log "hapctl analyze failed: $(tail -3 "$results/analysis.log")"
+  fi
 fi
 echo
 echo "=== demo finished (accelerator: $mode; under TCG timing figures are emulation artefacts)"
 grep -E '^(sample_rate_hz|loss_ratio|rtt_ms_mean|coupling_error_mean_m|handle_travel_m|coupled_travel_m):' "$results/summary.txt" 2>/dev/null | sed 's/^/  client  /'
 grep -E '^(cycles|misses|max_consecutive_misses|wakeup.p99_us|exec.p99_us|frames_in|answers_sent|state):' "$results/hap_stats.txt" | sed 's/^/  module  /'
-echo "results: $results (run.csv, summary.txt, hap_stats.txt, proto_interface.txt, simlog.bin, plots/)"
+grep -E '^(records|dropped_records|misses_located|fail_safe_steps|max_coupling_force_n|max_handle_speed_m_s):' "$results/plots/analysis.txt" 2>/dev/null | sed 's/^/  log     /' || true
+echo "results: $results (run.csv, summary.txt, hap_stats.txt, hap_hist.txt, proto_interface.txt, simlog.bin, plots/)"
+if [ -n "$report" ]; then echo "report: $report"; fi
+if [ -n "$cpid" ] && kill -0 "$cpid" 2>/dev/null; then
+  echo "the 3D page http://$http/ links to the report for 10 minutes (Ctrl-C ends it)"
+  trap 'kill $cpid 2>/dev/null || true' EXIT INT
+  wait "$cpid" || true
+fi

@@ -60,7 +60,7 @@ sv() { sed -n "s/^$1: //p" "$results/summary.txt" 2>/dev/null | head -1; }
 between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | tr -d "\r" | grep -v -- "$1-"; }
 between HAP-STATS > "$results/hap_stats.txt"
 between HAP-PROTO > "$results/proto_interface.txt"
-between HAP-SIMLOG | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d > "$results/simlog.bin" 2>/dev/null
+between HAP-SIMLOG | sed -E 's/\[ *[0-9]+\.[0-9]+\] .*$//' | grep -E "^[A-Za-z0-9+/=]+$" | base64 -d 2>/dev/null | gzip -dc > "$results/simlog.bin" 2>/dev/null
 gv() { sed -n "s/^$2: *\([^ ]*\).*/\1/p" "$results/$1" | head -1; }
 
 [ "$crc" = 0 ] && ok "the test client ran ${duration} s against the guest" || nok "the test client failed (exit $crc): $(tail -3 "$results/client.txt")"
@@ -86,7 +86,7 @@ check_num "bridge: no capability left (CapEff)" "$((16#$(sed -n 's/^HAP-BRIDGE-I
 check_num "module: nothing malformed reached it" "$(gv hap_stats.txt frames_rejected)" '==' 0
 check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
 echo "# module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses) (emulation noise), max consecutive $(gv hap_stats.txt max_consecutive_misses), answers sent $(gv hap_stats.txt answers_sent)"
-check_num "simulator log captured (records)" "$(( $(stat -c %s "$results/simlog.bin" 2>/dev/null || echo 0) / 288 ))" '>=' 100
+check_num "simulator log captured (records)" "$(( $(stat -c %s "$results/simlog.bin" 2>/dev/null || echo 0) / 560 ))" '>=' 100
 problems=$(grep -E "$HAP_SPLAT_RE" "$qlog" || true)
 [ -z "$problems" ] && ok "no kernel warning in the guest log" || nok "kernel problems: $problems"
 grep -q 'HAPTEST-RESULT rc=0' "$qlog" && ok "guest side passed (launch script start/stop)" || nok "guest side failed: $(grep -E 'not ok|HAPTEST-RESULT' "$qlog" | head -5)"

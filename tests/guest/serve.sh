@@ -3,12 +3,15 @@
 # start the controller with the launch script, load the user's effort, serve
 # the host's client until it has opened and closed its session (or the time
 # limit), then print the module's and the bridge's statistics and the
-# simulator log (base64) between markers, and stop cleanly.
+# simulator log of the whole run (`hapctl log` from the start; gzip, base64)
+# between markers, and stop cleanly.
 #   serve.sh PERIOD_US MAX_SECONDS
 . /tests/lib.sh
 period=${1:-2000}
 max_s=${2:-120}
 check "launch script starts proto_interface and the module" hapticctrl.sh start --period-us "$period"
+hapctl log --out /tmp/sim.bin --summary /tmp/simlog.txt 2>/dev/null &
+logpid=$!
 if [ -f /data/effort.eff ]; then
   check "load the user's effort sequence" dd if=/data/effort.eff of=/dev/hap_effort bs=64k count=1
 else
@@ -29,8 +32,19 @@ usleep 500000
 echo "HAP-STATS-BEGIN"; cat /dev/hap_stats; echo "HAP-STATS-END"
 kill -USR1 "$(pidof proto_interface)" 2>/dev/null; usleep 300000
 echo "HAP-PROTO-BEGIN"; cat /run/proto_interface.stats 2>/dev/null; echo "HAP-PROTO-END"
-hapdev simlog --raw /tmp/sim.bin > /dev/null
-echo "HAP-SIMLOG-BEGIN"; base64 /tmp/sim.bin; echo "HAP-SIMLOG-END"
+# The stop request runs the fail-safe, which closes the position log: the
+# recorder drains it and exits.
+echo 1 > /dev/hap_stop
+wait "$logpid"
+expect "the position log recorder ended cleanly" "$?" = 0
+echo "HAP-SIMLOG-SUMMARY-BEGIN"; cat /tmp/simlog.txt; echo "HAP-SIMLOG-SUMMARY-END"
+echo "HAP-HIST-BEGIN"; cat /dev/hap_hist; echo "HAP-HIST-END"
+# Kernel messages on the console would cut into the base64 lines (the host
+# also strips "[ time] message" tails).
+lvl=$(cut -f1 /proc/sys/kernel/printk 2>/dev/null)
+dmesg -n 1 2>/dev/null
+echo "HAP-SIMLOG-BEGIN"; gzip -1 -c /tmp/sim.bin | base64; echo "HAP-SIMLOG-END"
+[ -n "$lvl" ] && dmesg -n "$lvl" 2>/dev/null
 check "launch script stops cleanly" hapticctrl.sh stop
 check_not "the module is unloaded" sh -c 'grep -q ^hapticctrl /proc/modules'
 finish

@@ -82,6 +82,7 @@ impl ServoCycle {
         };
         self.servo.set_link_gain(gain);
         let mut vp = *self.servo.step(line, inputs, config, &vpr, mode);
+        self.servo.log_link(&est, gain);
         vp.status |= est.status;
         CycleResult {
             vp,

@@ -25,7 +25,8 @@ use super::control::{cartesian_control, ControlOutput, Controller};
 use super::effort::{EffortKeyframe, EffortParseError, EffortPlayer, EffortSample};
 use super::fixed::Fx;
 use super::io::{self, MotorLine};
-use super::simulator::{LogRecord, Simulator};
+use super::proto_synchro::VprEstimate;
+use super::simulator::{LogMode, LogRecord, LogTiming, Simulator};
 use super::state_model::{build_logical_state, build_physical_state};
 use super::vp::{alarm, status, VpReceived, VpSent};
 
@@ -192,6 +193,21 @@ impl Servo {
         &self.log
     }
 
+    /// Complete the last `LogRecord` with the synchronizer's view of the
+    /// VPr used by the step: its status bits (`VPR_EXTRAPOLATED`,
+    /// `LINK_FADING`), the link watchdog gain applied to the coupling and
+    /// the age of the data.
+    pub fn log_link(&mut self, est: &VprEstimate, gain: Fx) {
+        self.log.status |= est.status;
+        self.log.link_gain = gain;
+        self.log.vpr_age_cycles = if est.vpr.valid {
+            let period_us = u64::from(self.period_ns / 1000).max(1);
+            u32::try_from(est.age_us / period_us).unwrap_or(u32::MAX)
+        } else {
+            LogRecord::NO_VPR
+        };
+    }
+
     pub fn simulator(&self) -> &Simulator {
         &self.sim
     }
@@ -326,19 +342,40 @@ impl Servo {
             flags |= log_flags::LINE_CUT;
         }
         let o = ps.handle.orientation;
+        let vo = vpr.pose.orientation;
         self.log = LogRecord {
             flags,
             cycle: self.cycle,
+            time_us: t_us,
+            mode: match mode {
+                ServoMode::Main => LogMode::Main,
+                ServoMode::Degraded => LogMode::Degraded,
+            },
+            fail_safe_step: 0,
+            vpr_age_cycles: if vpr.valid {
+                u32::try_from(self.cycle.saturating_sub(vpr.received_cycle)).unwrap_or(u32::MAX)
+            } else {
+                LogRecord::NO_VPR
+            },
             q: ps.q,
             qd: ps.qd,
             handle_position: ps.handle.position,
             handle_orientation: [o.x, o.y, o.z, o.w],
+            handle_velocity: ps.twist.linear,
+            handle_angular_velocity: ps.twist.angular,
+            torque_command: out.joint_torques,
             motor_torque: self.sim.applied_torques(),
+            coupling_force: out.handle_wrench.force,
+            coupling_torque: out.handle_wrench.torque,
             user_wrench: user.wrench.to_array(),
+            vpr_position: vpr.pose.position,
+            vpr_orientation: [vo.x, vo.y, vo.z, vo.w],
+            handle_position_client: out.handle_pose_client.position,
             status: st,
             alarms: self.alarms,
             po_energy: out.po_energy,
-            coupling_force: out.handle_wrench.force.norm(),
+            link_gain: Fx::ONE,
+            timing: LogTiming::ZERO,
         };
         self.cycle = self.cycle.wrapping_add(1);
         &self.vp

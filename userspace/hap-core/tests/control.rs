@@ -270,7 +270,7 @@ fn saturation_never_exceeded_over_1e6_randomized_cycles() {
         for (t, l) in st.iter().zip(tau_max.iter()) {
             assert!(t.abs() <= *l);
         }
-        let f = s.log_record().coupling_force;
+        let f = s.log_record().coupling_force.norm();
         assert!(f <= MAX_FORCE + Fx(16), "cycle {n}: coupling force {f:?}");
         if vp.status & status::COUPLED != 0 {
             coupled += 1;

@@ -310,3 +310,126 @@ fn log_record_round_trip_and_errors() {
     bad[4] = 9;
     assert_eq!(LogRecord::decode(&bad), Err(LogDecodeError::BadVersion));
 }
+
+/// Every field at its documented offset (simulator.md), each distinct, and
+/// back; a bad mode byte is refused.
+#[test]
+fn log_record_v2_layout_matches_its_documentation() {
+    use hap_core::simulator::{LogMode, LogTiming};
+    let f = |k: i64| Fx(k.wrapping_mul(0x0101_0101_0101) ^ 0x5a);
+    let v3 = |k: i64| Vec3::new(f(k), f(k + 1), f(k + 2));
+    let j6 = |k: i64| [f(k), f(k + 1), f(k + 2), f(k + 3), f(k + 4), f(k + 5)];
+    let r = LogRecord {
+        flags: 0x7f,
+        cycle: 0x0102_0304_0506_0708,
+        time_us: 0x1112_1314_1516_1718,
+        mode: LogMode::FailSafe,
+        fail_safe_step: 4,
+        vpr_age_cycles: 0x2122_2324,
+        q: j6(10),
+        qd: j6(20),
+        handle_position: v3(30),
+        handle_orientation: [f(40), f(41), f(42), f(43)],
+        handle_velocity: v3(50),
+        handle_angular_velocity: v3(60),
+        torque_command: j6(70),
+        motor_torque: j6(80),
+        coupling_force: v3(90),
+        coupling_torque: v3(100),
+        user_wrench: j6(110),
+        vpr_position: v3(120),
+        vpr_orientation: [f(130), f(131), f(132), f(133)],
+        handle_position_client: v3(140),
+        status: 0x3132_3334,
+        alarms: 0x4142_4344,
+        po_energy: f(150),
+        link_gain: f(151),
+        timing: LogTiming {
+            tick: 0x5152_5354_5556_5758,
+            start_ns: 0x6162_6364_6566_6768,
+            wakeup_ns: 0x7172_7374,
+            exec_ns: 0x8182_8384,
+            session: 0x9192,
+        },
+    };
+    let mut b = [0u8; LogRecord::SIZE];
+    r.encode(&mut b);
+    let u64_at = |o: usize| u64::from_le_bytes(b[o..o + 8].try_into().unwrap());
+    let u32_at = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
+    let fx_at = |o: usize| Fx(u64_at(o) as i64);
+    assert_eq!(&b[0..4], b"HAPL");
+    assert_eq!(u16::from_le_bytes([b[4], b[5]]), 2);
+    assert_eq!(u16::from_le_bytes([b[6], b[7]]), 0x7f);
+    assert_eq!(u64_at(8), r.cycle);
+    assert_eq!(u64_at(16), r.time_us);
+    assert_eq!((b[24], b[25], b[26], b[27]), (2, 4, 0, 0));
+    assert_eq!(u32_at(28), r.vpr_age_cycles);
+    assert_eq!(fx_at(32), r.q[0]);
+    assert_eq!(fx_at(80), r.qd[0]);
+    assert_eq!(fx_at(128), r.handle_position.x);
+    assert_eq!(fx_at(152), r.handle_orientation[0]);
+    assert_eq!(fx_at(184), r.handle_velocity.x);
+    assert_eq!(fx_at(208), r.handle_angular_velocity.x);
+    assert_eq!(fx_at(232), r.torque_command[0]);
+    assert_eq!(fx_at(280), r.motor_torque[0]);
+    assert_eq!(fx_at(328), r.coupling_force.x);
+    assert_eq!(fx_at(352), r.coupling_torque.x);
+    assert_eq!(fx_at(376), r.user_wrench[0]);
+    assert_eq!(fx_at(424), r.vpr_position.x);
+    assert_eq!(fx_at(448), r.vpr_orientation[0]);
+    assert_eq!(fx_at(480), r.handle_position_client.x);
+    assert_eq!(u32_at(504), r.status);
+    assert_eq!(u32_at(508), r.alarms);
+    assert_eq!(fx_at(512), r.po_energy);
+    assert_eq!(fx_at(520), r.link_gain);
+    assert_eq!(LogRecord::TIMING, 528..560);
+    assert_eq!(u64_at(528), r.timing.tick);
+    assert_eq!(u64_at(536), r.timing.start_ns);
+    assert_eq!(u32_at(544), r.timing.wakeup_ns);
+    assert_eq!(u32_at(548), r.timing.exec_ns);
+    assert_eq!(u16::from_le_bytes([b[552], b[553]]), 0x9192);
+    assert_eq!(&b[554..560], &[0u8; 6]);
+    assert_eq!(LogRecord::decode(&b), Ok(r));
+    let mut bad = b;
+    bad[24] = 3;
+    assert_eq!(LogRecord::decode(&bad), Err(LogDecodeError::BadMode));
+}
+
+/// The log carries what the motors produced (the simulator's torques,
+/// within the motor limits), the VPr in use, the servo time and the mode.
+#[test]
+fn log_record_carries_command_applied_vpr_and_mode() {
+    let mut s = StandaloneServo::new(PERIOD_NS);
+    s.load_effort_text(SCRIPT).unwrap();
+    let vpr = far_vpr();
+    for n in 0..400 {
+        let mode = if n == 399 {
+            ServoMode::Degraded
+        } else {
+            ServoMode::Main
+        };
+        s.step(
+            &ServoInputs {
+                power_request: if n == 0 {
+                    PowerRequest::On
+                } else {
+                    PowerRequest::None
+                },
+                live_effort: None,
+            },
+            &impedance_cfg(),
+            &vpr,
+            mode,
+        );
+    }
+    let r = *s.log_record();
+    assert_eq!(r.mode, hap_core::simulator::LogMode::Degraded);
+    assert_eq!(r.cycle, 399);
+    assert_eq!(r.time_us, 399 * u64::from(PERIOD_NS / 1000));
+    assert_eq!(r.vpr_position, vpr.pose.position);
+    assert_eq!(r.motor_torque, s.simulator().applied_torques());
+    for (a, l) in r.motor_torque.iter().zip(hap_core::arm::TAU_MAX.iter()) {
+        assert!(a.abs() <= *l);
+    }
+    assert!(r.coupling_force.norm() > Fx::ZERO);
+}

@@ -66,16 +66,22 @@ enum Cmd {
         #[command(subcommand)]
         cmd: SimCmd,
     },
-    /// Capture the simulator's position log (/dev/hap_simlog).
+    /// Record the simulator's position log (/dev/hap_simlog) for the whole
+    /// session: drains it until the module's fail-safe closes it (or
+    /// --cycles), then prints how many records the ring dropped.
     Log {
         /// Output file (binary records, as read); default stdout as CSV.
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Stop after this many records (default: until interrupted or EOF).
+        /// Stop after this many records (default: until end of file).
         #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
         cycles: Option<u64>,
+        /// Also write the end summary (records, dropped_records, ...) there.
+        #[arg(long)]
+        summary: Option<PathBuf>,
     },
-    /// Off-line analysis: plots (PNG and SVG) from a captured log.
+    /// Off-line analysis of a whole run: figures (PNG and SVG), events,
+    /// analysis.txt and a one-page report (summary.html).
     #[cfg(feature = "analyze")]
     Analyze {
         /// A log captured by `hapctl log --out`.
@@ -83,10 +89,17 @@ enum Cmd {
         /// Output directory (created).
         #[arg(long)]
         out: PathBuf,
-        /// A dump of /dev/hap_stats (`cat /dev/hap_stats > FILE`) for the
-        /// cycle-time and wake-up latency histograms.
+        /// A dump of /dev/hap_stats (`cat /dev/hap_stats > FILE`): the
+        /// period and the module's counters for the report.
         #[arg(long)]
         stats: Option<PathBuf>,
+        /// A dump of /dev/hap_hist: the latency histogram.
+        #[arg(long)]
+        hist: Option<PathBuf>,
+        /// `key: value` files shown in the report as they are (the client's
+        /// summary.txt, `hapctl log --summary`); repeatable.
+        #[arg(long)]
+        summary: Vec<PathBuf>,
     },
     /// Charts (PNG and SVG) from CSV files, for the benchmark scripts.
     #[cfg(feature = "analyze")]
@@ -267,9 +280,33 @@ fn run(cli: Cli) -> Result<(), String> {
                 Ok(())
             }
         },
-        Cmd::Log { out, cycles } => simlog::capture(&dev(d, "hap_simlog"), out.as_deref(), cycles),
+        Cmd::Log {
+            out,
+            cycles,
+            summary,
+        } => simlog::capture(
+            &dev(d, "hap_simlog"),
+            out.as_deref(),
+            cycles,
+            &dev(d, "hap_stats"),
+            summary.as_deref(),
+        ),
         #[cfg(feature = "analyze")]
-        Cmd::Analyze { log, out, stats } => analyze::run(&log, &out, stats.as_deref()),
+        Cmd::Analyze {
+            log,
+            out,
+            stats,
+            hist,
+            summary,
+        } => analyze::run(
+            &log,
+            &out,
+            &analyze::Inputs {
+                stats: stats.as_deref(),
+                hist: hist.as_deref(),
+                summaries: &summary,
+            },
+        ),
         #[cfg(feature = "analyze")]
         Cmd::Plot {
             kind,

@@ -7,7 +7,7 @@ use std::io::{BufWriter, Read, Write};
 use std::path::Path;
 
 use hap_core::effort::{parse_effort_sequence, parse_milli, EffortKeyframe, EFFORT_CAPACITY};
-use hap_core::simulator::LogRecord;
+use hap_core::simulator::{LogMode, LogRecord};
 
 /// Validate an effort sequence; returns a one-line summary.
 pub fn validate_effort(text: &str) -> Result<String, String> {
@@ -48,34 +48,97 @@ pub fn live_line(w: &[f64]) -> Result<String, String> {
 }
 
 /// CSV header matching [`csv_row`].
-pub const CSV_HEADER: &str = "cycle,flags,status,alarms,hx,hy,hz,qx,qy,qz,qw,user_fx,user_fy,user_fz,user_tx,user_ty,user_tz,coupling_force,po_energy";
+pub const CSV_HEADER: &str = "cycle,time_us,mode,fail_safe_step,flags,status,alarms,vpr_age_cycles,hx,hy,hz,qx,qy,qz,qw,vx,vy,vz,user_fx,user_fy,user_fz,user_tx,user_ty,user_tz,coupling_fx,coupling_fy,coupling_fz,po_energy,link_gain,tick,wakeup_ns,exec_ns";
 
 pub fn csv_row(r: &LogRecord) -> String {
-    let h = r.handle_position.to_f64();
-    let q: Vec<String> = r
-        .handle_orientation
-        .iter()
-        .map(|v| format!("{:.6}", v.to_f64()))
-        .collect();
-    let u: Vec<String> = r
-        .user_wrench
-        .iter()
-        .map(|v| format!("{:.4}", v.to_f64()))
-        .collect();
+    let f = |v: &[hap_core::fixed::Fx], prec: usize| -> String {
+        v.iter()
+            .map(|x| format!("{:.prec$}", x.to_f64()))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
     format!(
-        "{},{},{},{},{:.6},{:.6},{:.6},{},{},{:.4},{:.6}",
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.6},{:.6},{},{},{}",
         r.cycle,
+        r.time_us,
+        r.mode.name(),
+        r.fail_safe_step,
         r.flags,
         r.status,
         r.alarms,
-        h[0],
-        h[1],
-        h[2],
-        q.join(","),
-        u.join(","),
-        r.coupling_force.to_f64(),
-        r.po_energy.to_f64()
+        r.vpr_age_cycles,
+        f(&r.handle_position.to_array(), 6),
+        f(&r.handle_orientation, 6),
+        f(&r.handle_velocity.to_array(), 5),
+        f(&r.user_wrench, 4),
+        f(&r.coupling_force.to_array(), 4),
+        r.po_energy.to_f64(),
+        r.link_gain.to_f64(),
+        r.timing.tick,
+        r.timing.wakeup_ns,
+        r.timing.exec_ns
     )
+}
+
+/// Continuity of a position log: the servo writes one record per cycle
+/// with consecutive cycle numbers, so a gap is records the ring dropped.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Continuity {
+    /// Records in the log (servo cycles and fail-safe steps).
+    pub records: u64,
+    /// Fail-safe step records.
+    pub fail_safe: u64,
+    /// Cycles missing between consecutive servo records (dropped by the ring).
+    pub dropped: u64,
+    /// Times the cycle count went back (module reloaded: a new run).
+    pub restarts: u64,
+    /// First and last servo cycle seen.
+    pub first_cycle: Option<u64>,
+    pub last_cycle: Option<u64>,
+}
+
+impl Continuity {
+    /// Account for the next record.
+    pub fn add(&mut self, r: &LogRecord) {
+        self.records = self.records.saturating_add(1);
+        if r.mode == LogMode::FailSafe {
+            self.fail_safe = self.fail_safe.saturating_add(1);
+            return;
+        }
+        if let Some(last) = self.last_cycle {
+            if r.cycle > last {
+                self.dropped = self.dropped.saturating_add(r.cycle - last - 1);
+            } else {
+                self.restarts = self.restarts.saturating_add(1);
+            }
+        } else {
+            self.first_cycle = Some(r.cycle);
+        }
+        self.last_cycle = Some(r.cycle);
+    }
+
+    #[cfg_attr(not(feature = "analyze"), allow(dead_code))]
+    pub fn of(recs: &[LogRecord]) -> Continuity {
+        let mut c = Continuity::default();
+        for r in recs {
+            c.add(r);
+        }
+        c
+    }
+
+    /// `key: value` lines.
+    pub fn text(&self) -> String {
+        let opt = |v: Option<u64>| v.map(|c| c.to_string()).unwrap_or_else(|| "-".into());
+        format!(
+            "records: {}\nfirst_cycle: {}\nlast_cycle: {}\ndropped_records: {}\nfail_safe_records: {}\nrestarts: {}\n",
+            self.records,
+            opt(self.first_cycle),
+            opt(self.last_cycle),
+            self.dropped,
+            self.fail_safe,
+            self.restarts
+        )
+    }
 }
 
 #[cfg_attr(not(feature = "analyze"), allow(dead_code))]
@@ -95,9 +158,19 @@ pub fn decode_all(bytes: &[u8]) -> (Vec<LogRecord>, usize) {
     (out, bad)
 }
 
-/// Read records from `dev` until EOF or `cycles` records; write them raw to
-/// `out` (or as CSV on stdout).
-pub fn capture(dev: &Path, out: Option<&Path>, cycles: Option<u64>) -> Result<(), String> {
+/// Drain `dev` until end of file (the fail-safe closes the log once it is
+/// read) or `cycles` records: raw records to `out` (flushed after every
+/// read, so the file is whole up to the last read if the reader is killed),
+/// else CSV on stdout. At the end, prints the log's continuity (records,
+/// records the ring dropped) and the module's own `simlog.dropped` count
+/// from `stats` if it can be read, to stderr and to `summary` if given.
+pub fn capture(
+    dev: &Path,
+    out: Option<&Path>,
+    cycles: Option<u64>,
+    stats: &Path,
+    summary: Option<&Path>,
+) -> Result<(), String> {
     let mut f =
         File::open(dev).map_err(|e| format!("{}: {e} (is the module loaded?)", dev.display()))?;
     let mut sink: Box<dyn Write> = match out {
@@ -113,6 +186,7 @@ pub fn capture(dev: &Path, out: Option<&Path>, cycles: Option<u64>) -> Result<()
     let mut pending: Vec<u8> = Vec::new();
     let mut n: u64 = 0;
     let mut bad = 0usize;
+    let mut cont = Continuity::default();
     let limit = cycles.unwrap_or(u64::MAX);
     'outer: while n < limit {
         let got = match f.read(&mut buf) {
@@ -121,7 +195,7 @@ pub fn capture(dev: &Path, out: Option<&Path>, cycles: Option<u64>) -> Result<()
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(format!("{}: read: {e}", dev.display())),
         };
-        pending.extend_from_slice(&buf[..got]);
+        pending.extend_from_slice(buf.get(..got).unwrap_or(&[]));
         let whole = pending.len() / LogRecord::SIZE * LogRecord::SIZE;
         for chunk in pending[..whole].chunks_exact(LogRecord::SIZE) {
             if n >= limit {
@@ -139,25 +213,32 @@ pub fn capture(dev: &Path, out: Option<&Path>, cycles: Option<u64>) -> Result<()
                     if w.is_err() {
                         break 'outer;
                     }
+                    cont.add(&r);
                     n += 1;
                 }
                 Err(_) => bad += 1,
             }
         }
         pending.drain(..whole);
-        let _ = sink.flush();
+        if sink.flush().is_err() {
+            break;
+        }
     }
     sink.flush().map_err(|e| format!("write: {e}"))?;
-    if let Some(p) = out {
-        eprintln!(
-            "hapctl: {n} records written to {}{}",
-            p.display(),
-            if bad > 0 {
-                format!(" ({bad} undecodable skipped)")
-            } else {
-                String::new()
+    let mut text = cont.text();
+    text.push_str(&format!("undecodable_records: {bad}\n"));
+    if let Ok(st) = std::fs::read_to_string(stats) {
+        for (k, v) in hap_core::stats::key_values(&st) {
+            if k.starts_with("simlog.") {
+                text.push_str(&format!("module.{k}: {v}\n"));
             }
-        );
+        }
+    }
+    if let Some(p) = summary {
+        std::fs::write(p, &text).map_err(|e| format!("{}: {e}", p.display()))?;
+    }
+    for line in text.lines() {
+        eprintln!("hapctl log: {line}");
     }
     Ok(())
 }

@@ -118,12 +118,18 @@ fn power_sim_and_stats_write_and_read_devices() {
 fn fake_log(path: &Path, n: u64) {
     let mut bytes = Vec::new();
     for i in 0..n {
+        // The ring dropped five records after the first 300.
+        if (300..305).contains(&i) {
+            continue;
+        }
         let mut r = LogRecord::ZERO;
         r.cycle = 100 + i;
+        r.time_us = r.cycle * 1000;
         let t = i as f64 * 1e-3;
         r.handle_position =
             hap_core::fixed::Vec3::from_f64([0.05 * (6.0 * t).sin(), 0.01, 0.02 * t]);
-        r.coupling_force = hap_core::fixed::Fx::from_f64(3.0 * (6.0 * t).cos().abs());
+        r.coupling_force =
+            hap_core::fixed::Vec3::from_f64([3.0 * (6.0 * t).cos().abs(), 0.0, -1.0]);
         let mut b = [0u8; LogRecord::SIZE];
         r.encode(&mut b);
         bytes.extend_from_slice(&b);
@@ -145,6 +151,27 @@ fn log_capture_and_analyze() {
         std::fs::metadata(&out).unwrap().len(),
         300 * LogRecord::SIZE as u64
     );
+    // The whole log: the recorder counts the five records the ring dropped
+    // and shows the module's own count.
+    std::fs::write(d.join("hap_stats"), "version: 1\nsimlog.dropped: 5\n").unwrap();
+    let all = d.join("all.log");
+    let summ = d.join("log.txt");
+    let o = hapctl(
+        &d,
+        &[
+            "log",
+            "--out",
+            all.to_str().unwrap(),
+            "--summary",
+            summ.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    let s = std::fs::read_to_string(&summ).unwrap();
+    assert!(s.contains("records: 495\n"), "{s}");
+    assert!(s.contains("dropped_records: 5\n"), "{s}");
+    assert!(s.contains("module.simlog.dropped: 5\n"), "{s}");
+    assert!(err(&o).contains("dropped_records: 5"), "{}", err(&o));
     // CSV on stdout without --out.
     let o = hapctl(&d, &["log", "--cycles", "2"]);
     let csv = String::from_utf8_lossy(&o.stdout);
@@ -174,13 +201,22 @@ fn log_capture_and_analyze() {
         ],
     );
     assert!(o.status.success(), "{}", err(&o));
-    for f in ["trajectory", "coupling_force", "timing"] {
+    for f in [
+        "trajectory",
+        "forces",
+        "torques",
+        "speed",
+        "energy",
+        "events",
+    ] {
         for ext in ["png", "svg"] {
             let p = plots.join(format!("{f}.{ext}"));
             let len = std::fs::metadata(&p).map(|m| m.len()).unwrap_or(0);
             assert!(len > 1000, "{} missing or empty", p.display());
         }
     }
+    let html = std::fs::read_to_string(plots.join("summary.html")).unwrap();
+    assert!(html.contains("<img src=\"forces.png\""), "{html}");
     let png = std::fs::read(plots.join("trajectory.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
     // Garbage instead of a log: clear error.

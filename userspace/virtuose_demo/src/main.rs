@@ -63,6 +63,11 @@ struct Args {
     /// guest-time figures in the summary.
     #[arg(long, requires = "results")]
     bench: bool,
+    /// Keep the web page up this many seconds after the run, so that it can
+    /// link to the run's report (RESULTS/plots/summary.html, written by
+    /// `hapctl analyze`) once it exists.
+    #[arg(long, default_value_t = 0, requires = "results")]
+    linger: u64,
 }
 
 /// Link-benchmark bookkeeping (`--bench`): the RTT histogram (1 µs
@@ -235,6 +240,8 @@ pub struct Shared {
     pub world: World,
     pub server: String,
     pub done: AtomicBool,
+    /// Directory of the run's report (served under /report/).
+    pub report_dir: Option<PathBuf>,
 }
 
 fn a3(v: &V3) -> [f64; 3] {
@@ -367,6 +374,7 @@ fn run(args: Args) -> Result<(), String> {
         world,
         server: server.clone(),
         done: AtomicBool::new(false),
+        report_dir: args.results.as_ref().map(|d| d.join("plots")),
     });
     if !args.headless {
         let url = web::start(args.http, shared.clone())
@@ -584,6 +592,14 @@ fn run(args: Args) -> Result<(), String> {
                 .map_err(|e| format!("{}: {e}", dir.display()))?;
         }
         println!("results in {}", dir.display());
+        if !args.headless && args.linger > 0 {
+            println!(
+                "web page kept up {} s for the run report (Ctrl-C ends it)",
+                args.linger
+            );
+            let _ = std::io::stdout().flush();
+            std::thread::sleep(Duration::from_secs(args.linger));
+        }
     }
     Ok(())
 }

@@ -4,6 +4,9 @@
 //! - `/app.js`    its script
 //! - `/state.json?since=T`  the current sample + plot history as JSON; a
 //!   long poll: answers once the demo time passed T + 40 ms (or after 500 ms).
+//! - `/report/NAME` the run's report files (RESULTS/plots: summary.html and
+//!   its figures) once `hapctl analyze` has written them; `state.json`'s
+//!   `report` says when summary.html is there.
 
 use std::fmt::Write as _;
 use std::io::{BufRead, BufReader, Write};
@@ -97,8 +100,46 @@ fn serve(mut s: TcpStream, shared: &Shared) -> std::io::Result<()> {
             let body = state_json(shared);
             respond(&mut s, "200 OK", "application/json", &body)
         }
+        _ if path.starts_with("/report/") => {
+            serve_report(&mut s, shared, &path["/report/".len()..])
+        }
         _ => respond(&mut s, "404 Not Found", "text/plain", "not found\n"),
     }
+}
+
+/// A file of the report directory: a plain name (letters, digits, `_`,
+/// `-`, `.`, not starting with `.`) with a known extension, nothing else.
+fn serve_report(s: &mut TcpStream, shared: &Shared, name: &str) -> std::io::Result<()> {
+    let ctype = match name.rsplit_once('.').map(|(_, e)| e) {
+        Some("html") => "text/html; charset=utf-8",
+        Some("png") => "image/png",
+        Some("svg") => "image/svg+xml",
+        Some("txt") | Some("csv") => "text/plain; charset=utf-8",
+        _ => "",
+    };
+    let plain = !name.starts_with('.')
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
+    let body = match (&shared.report_dir, plain && !ctype.is_empty()) {
+        (Some(dir), true) => std::fs::read(dir.join(name)).ok(),
+        _ => None,
+    };
+    let Some(body) = body else {
+        return respond(
+            s,
+            "404 Not Found",
+            "text/plain",
+            "no such report file (yet)\n",
+        );
+    };
+    write!(
+        s,
+        "HTTP/1.0 200 OK\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n",
+        body.len()
+    )?;
+    s.write_all(&body)?;
+    s.flush()
 }
 
 fn arr(v: &[f64; 3]) -> String {
@@ -160,8 +201,12 @@ pub fn state_json(shared: &Shared) -> String {
         .filter(|c| c.is_ascii_graphic() && *c != '"' && *c != '\\')
         .collect();
     format!(
-        "{{\"server\":\"{server}\",\"done\":{},\"world\":{{\"radiusA\":{},\"radiusB\":{},\"floorZ\":{},\"halfWidth\":{}}},\"now\":{},\"history\":{hist}}}",
+        "{{\"server\":\"{server}\",\"done\":{},\"report\":{},\"world\":{{\"radiusA\":{},\"radiusB\":{},\"floorZ\":{},\"halfWidth\":{}}},\"now\":{},\"history\":{hist}}}",
         shared.done.load(Ordering::SeqCst),
+        shared
+            .report_dir
+            .as_ref()
+            .is_some_and(|d| d.join("summary.html").is_file()),
         num(w.a.radius),
         num(w.b.radius),
         num(w.floor_z),

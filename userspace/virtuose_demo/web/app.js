@@ -141,7 +141,15 @@ function update(st) {
     demoState.couplingErrorLast = dist(n.handle, n.coupled);
     if (n.t > 1.0) demoState.couplingErrorMax = Math.max(demoState.couplingErrorMax, demoState.couplingErrorLast);
   }
-  document.getElementById("server").textContent = "controller: " + st.server + (st.done ? " (run finished)" : "");
+  const server = document.getElementById("server");
+  server.textContent = "controller: " + st.server + (st.done ? " (run finished)" : "");
+  if (st.report) {
+    const a = document.createElement("a");
+    a.href = "report/summary.html";
+    a.textContent = "run report";
+    server.append(" — ", a);
+  }
+  demoState.report = !!st.report;
   document.getElementById("info").textContent =
     `t = ${n.t.toFixed(1)} s   power ${n.power ? "on" : "off"}\n` +
     `answers ${n.rateHz.toFixed(0)} Hz   loss ${(n.loss * 100).toFixed(3)} %   rtt ${n.rttMs.toFixed(3)} ms\n` +
@@ -165,6 +173,8 @@ async function poll() {
   } catch (e) {
     demoState.errors++;
   }
+  // After the run, poll slowly until the report is there.
   if (!demoState.done) setTimeout(poll, 50);
+  else if (!demoState.report) setTimeout(poll, 1000);
 }
 poll();
