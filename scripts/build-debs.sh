@@ -5,7 +5,8 @@
 #    kernel headers' rust/ (scripts/rust-headers.sh), so DKMS builds the module
 #    for every installed Rust-enabled kernel, and again after a kernel upgrade;
 #  - hapticctrl-tools (amd64): proto_interface, hapctl, hapdev, virtuose_demo,
-#    the launch script hapticctrl.sh, libvirtuose_api (.so, .a) and its header.
+#    the launch script hapticctrl.sh, libvirtuose_api (.so, .a) and its header,
+#    the sample effort sequences (/usr/share/hapticctrl/*.eff).
 #   scripts/build-debs.sh [--out DIR]      (default build/debs; prints the two paths)
 set -euo pipefail
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
@@ -88,6 +89,8 @@ for b in proto_interface hapctl hapdev virtuose_demo; do install -m 755 "$rel/$b
 install -m 755 "$HAP_ROOT/scripts/hapticctrl.sh" "$t/usr/sbin/hapticctrl.sh"
 install -m 644 "$rel/libvirtuose_api.so" "$rel/libvirtuose_api.a" "$t/usr/lib/x86_64-linux-gnu/"
 install -m 644 "$HAP_ROOT/include/virtuose_api.h" "$t/usr/include/"
+mkdir -p "$t/usr/share/hapticctrl"
+install -m 644 "$HAP_ROOT"/tests/data/*.eff "$t/usr/share/hapticctrl/"
 printf 'hapticctrl\nLicense: GPL-2.0-only\n' >"$t/usr/share/doc/hapticctrl-tools/copyright"
 # Depends: the packages (on this machine) of the shared libraries the ELF
 # files need, at least at the versions built against.

@@ -4,10 +4,12 @@
 HT_PASS=0
 HT_FAIL=0
 HT_N=0
-HAP_KO=/lib/modules/hapticctrl.ko
-HAP_MODE=$(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' /proc/cmdline)
+# In the guest these come from the initramfs and the kernel command line;
+# scripts/bench-rt.sh --host sets them in the environment instead.
+HAP_KO=${HAP_KO:-/lib/modules/hapticctrl.ko}
+HAP_MODE=${HAP_MODE:-$(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' /proc/cmdline)}
 # The servo period the suite runs at (qemu-run.sh --period-us; 1000 by default).
-HAP_PERIOD_US=$(sed -n 's/.*hap\.period_us=\([0-9]*\).*/\1/p' /proc/cmdline)
+HAP_PERIOD_US=${HAP_PERIOD_US:-$(sed -n 's/.*hap\.period_us=\([0-9]*\).*/\1/p' /proc/cmdline)}
 HAP_PERIOD_US=${HAP_PERIOD_US:-1000}
 # cycles_in MS: servo cycles in MS milliseconds at the suite's period.
 cycles_in() { echo $(( $1 * 1000 / HAP_PERIOD_US )); }
