@@ -151,6 +151,13 @@ prepare() {
   install_pkgs
   if ! in_chroot bash "$HAP_ROOT/scripts/rust-headers.sh" --check "$KREL" 2>/dev/null; then
     local t0; t0=$(date +%s)
+    # The unpacked source and the build (~3 GB, thrown away afterwards) in
+    # memory: unpacking and removing 80 000 files is slow on a busy disk.
+    local kw=$C/var/cache/hapticctrl/kbuild
+    mkdir -p "$kw"
+    if ! mountpoint -q "$kw" && [ "${HAP_KBUILD_TMPFS:-1}" = 1 ]; then
+      mount -t tmpfs -o size=8g hap-kbuild "$kw" && mounted+=("$kw")
+    fi
     in_chroot bash "$HAP_ROOT/scripts/rust-headers.sh" --install-deps "$KREL" ||
       die "regenerating rust/ for $KREL failed"
     log "TIMING toolchain + rust/ regeneration (modules_prepare) $(( $(date +%s) - t0 )) s"
@@ -177,10 +184,15 @@ image() {
     rm -rf "$dir" "$C/var/cache/hap-image"; mkdir -p "$C/var/cache/hap-image" "$dir"
     mount_chroot
     in_chroot apt-get update -q -o Acquire::Retries=3 >/dev/null
-    in_chroot sh -c "cd /var/cache/hap-image && apt-get download -q 'linux-binary-$KREL=$DEB_KVERSION' 'linux-modules-$KREL=$DEB_KVERSION'" >/dev/null
+    in_chroot sh -c "cd /var/cache/hap-image && apt-get download -q -o APT::Sandbox::User=root 'linux-binary-$KREL=$DEB_KVERSION' 'linux-modules-$KREL=$DEB_KVERSION'" >/dev/null
     for d in "$C"/var/cache/hap-image/*.deb; do dpkg-deb -x "$d" "$dir"; done
     rm -rf "$C/var/cache/hap-image"
-    [ -f "$dir/boot/vmlinuz-$KREL" ] || die "no boot/vmlinuz-$KREL in the image packages"
+    # Newer packages put everything under usr/lib/modules/KREL/ (vmlinuz too).
+    if [ -d "$dir/usr/lib/modules" ] && [ ! -e "$dir/lib" ]; then ln -s usr/lib "$dir/lib"; fi
+    if [ ! -e "$dir/boot/vmlinuz-$KREL" ] && [ -f "$dir/lib/modules/$KREL/vmlinuz" ]; then
+      mkdir -p "$dir/boot"; ln -s "../lib/modules/$KREL/vmlinuz" "$dir/boot/vmlinuz-$KREL"
+    fi
+    [ -f "$dir/boot/vmlinuz-$KREL" ] || die "no vmlinuz for $KREL in the image packages"
     depmod -b "$dir" "$KREL" || die "depmod of the unpacked modules failed"
     [ -s "$dir/lib/modules/$KREL/modules.dep" ] || die "no modules.dep for $KREL"
     touch "$dir/.hap-unpacked"

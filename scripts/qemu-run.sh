@@ -78,7 +78,7 @@ if [ "$variant" = stock ]; then
         *) cat "$img/lib/modules/$krel/$m" ;;
       esac >"$kmod_dir/$n-$(basename "${m%.ko*}").ko"
       extras+=("$kmod_dir/$n-$(basename "${m%.ko*}").ko:/lib/modules/boot/$n-$(basename "${m%.ko*}").ko")
-    done < <(hap_kmod_order "$img/lib/modules/$krel/modules.dep" virtio_pci virtio_net)
+    done < <(hap_kmod_order "$img/lib/modules/$krel/modules.dep" virtio_net)
   fi
 else
   KDIR=$(bash "$HERE/build-kernel.sh" ${variant:+--$variant})

@@ -62,7 +62,7 @@ target_json=$(readlink -f "$H/scripts")/target.json
 want_stamp="headers=$hdr_pkg $hdr_ver; rustc=$rustc_want"
 current() {
   [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want_stamp" ] &&
-    ls "$H"/rust/kernel.rmeta "$H"/rust/libmacros.so >/dev/null 2>&1 && [ -f "$target_json" ]
+    ls "$H"/rust/libkernel.rmeta "$H"/rust/libmacros.so >/dev/null 2>&1 && [ -f "$target_json" ]
 }
 if current; then
   say "rust/ of $H is current ($want_stamp)"
