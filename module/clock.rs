@@ -183,18 +183,15 @@ pub(crate) fn clock_main(sh: &Shared) {
             }
             st.record_verdict(&verdict);
         }
-        if let Verdict::Miss { consecutive } = verdict {
-            if let Some(mut d) = sh.data.try_lock() {
-                d.cycle.servo.note_deadline_miss();
-            }
-            let _ = consecutive;
-        }
         if let Verdict::FailSafe(cause) = verdict {
             fail_safe(sh, cause);
             return;
         }
     }
 }
+
+/// Periods the fail-safe's last step waits for a SERVO still in its cycle.
+const RELEASE_WAIT_PERIODS: u32 = 4;
 
 /// The fail-safe (spec §3.4, §4.1), in hap-core's order. Runs in CLOCK.
 pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
@@ -209,20 +206,11 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
     );
     for (i, action) in FAIL_SAFE_SEQUENCE.iter().enumerate() {
         match action {
-            FailSafeAction::InhibitMotorCommands => {
-                // The line is cut at once; SERVO's data is updated now if
-                // SERVO is not inside its cycle, else at its next lock.
-                sh.inhibit_motors.store(true, Release);
-                if let Some(mut d) = sh.data.try_lock() {
-                    d.cycle.servo.inhibit_motors();
-                }
-            }
-            FailSafeAction::PowerOffArm => {
-                sh.arm_power_cut.store(true, Release);
-                if let Some(mut d) = sh.data.try_lock() {
-                    d.cycle.servo.power_off();
-                }
-            }
+            // The first two steps act on hap_io's motor line, outside every
+            // lock: the motors apply 0 from here on, whether SERVO is
+            // waiting, inside its cycle holding `mtx_data`, or hung.
+            FailSafeAction::InhibitMotorCommands => sh.motor_line.fail_safe_inhibit(),
+            FailSafeAction::PowerOffArm => sh.motor_line.power_off(),
             FailSafeAction::CloseProtocol => {
                 sh.proto.lock().close();
                 sh.rtf_out.close(true);
@@ -234,16 +222,45 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
                 sh.rtf_in_ready.complete_all();
             }
             FailSafeAction::ReleaseResources => {
+                // A SERVO still inside its cycle (an overrun) gets a few
+                // periods to finish it, so that the position log holds the
+                // record of that last cycle, run on the cut line. A hung
+                // SERVO does not finish: the log is closed without it.
+                let mut waited = 0;
+                while sh.servo_working.load(Acquire) && waited < RELEASE_WAIT_PERIODS {
+                    kernel::time::delay::fsleep(Delta::from_nanos(sh.period_ns()));
+                    waited += 1;
+                }
+                if sh.servo_working.load(Acquire) {
+                    pr_warn!(
+                        "fail-safe ({}): SERVO still inside its cycle after {} periods (hung)\n",
+                        cause.name(),
+                        RELEASE_WAIT_PERIODS
+                    );
+                }
                 // The position log stays readable until drained.
                 sh.simlog.close(false);
             }
         }
+        let applied = sh.motor_line.applied();
         pr_warn!(
-            "fail-safe ({}): step {}/{}: {}\n",
+            "fail-safe ({}): step {}/{}: {} (servo {}, gate {}, supply {}, applied torque {})\n",
             cause.name(),
             i + 1,
             FAIL_SAFE_SEQUENCE.len(),
-            action.name()
+            action.name(),
+            if sh.servo_working.load(Acquire) {
+                "in cycle"
+            } else {
+                "waiting"
+            },
+            sh.motor_line.gate().name(),
+            u8::from(sh.motor_line.supply_on()),
+            if applied.iter().all(|t| t.0 == 0) {
+                "0"
+            } else {
+                "non-zero"
+            }
         );
     }
     pr_warn!(

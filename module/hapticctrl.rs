@@ -225,8 +225,11 @@ impl kernel::Module for HapticCtrl {
 impl Drop for HapticCtrl {
     fn drop(&mut self) {
         let sh = &self.shared;
-        // Termination (spec §3.2): close the client connection, stop the tasks,
-        // then destroy the channels and free the memory.
+        // Termination (spec §3.2): cut the motor line (whatever SERVO is
+        // doing), close the client connection, stop the tasks, then destroy
+        // the channels and free the memory.
+        sh.motor_line.fail_safe_inhibit();
+        sh.motor_line.power_off();
         sh.proto.lock().close();
         sh.stopping.store(true, Release);
         sh.rtf_out.close(true);

@@ -7,10 +7,17 @@
 //!
 //! `/dev/hap_power`: write `1` (power on) or `0` (power off), optionally
 //! followed by a newline; anything else is `EINVAL`. Reading gives the arm's
-//! state: `power=<0|1> motors=<0|1> inhibited=<0|1>`.
+//! state as its lines show it, read from hap_io's motor line without any lock:
+//! `power=<0|1> motors=<0|1> inhibited=<0|1> gate=<enabled|inhibited|fail_safe>`
+//! then `command=` (what the DAC holds) and `applied=` (what the motors
+//! produce now), six joint torques each in µN·m.
 
 use crate::{
-    hap_core::vp::status,
+    hap_core::{
+        fixed::Joints,
+        io::Gate,
+        vp::status,
+    },
     shared::{DeviceFile, Shared},
 };
 use core::fmt::Write;
@@ -23,16 +30,26 @@ use kernel::{
 };
 
 /// The arm's status bits as the hardware lines show them: SERVO's last
-/// answer, with the fail-safe's cuts applied (SERVO no longer runs after it).
+/// answer, with the power and motor bits read from the motor line now (the
+/// fail-safe cuts the line whatever SERVO does).
 pub(crate) fn arm_status(sh: &Shared) -> u32 {
-    let mut st = sh.last_status.load(Acquire);
-    if sh.inhibit_motors.load(Acquire) {
-        st &= !status::MOTORS_ENABLED;
+    let mut st = sh.last_status.load(Acquire) & !(status::POWER_ON | status::MOTORS_ENABLED);
+    if sh.motor_line.supply_on() {
+        st |= status::POWER_ON;
     }
-    if sh.arm_power_cut.load(Acquire) {
-        st &= !(status::POWER_ON | status::MOTORS_ENABLED);
+    if sh.motor_line.motors_enabled() {
+        st |= status::MOTORS_ENABLED;
     }
     st
+}
+
+/// Joint torques as whole µN·m, comma-separated.
+fn write_torques(w: &mut impl Write, tau: &Joints) -> core::fmt::Result {
+    for (i, t) in tau.iter().enumerate() {
+        let sep = if i == 0 { "" } else { "," };
+        write!(w, "{sep}{}", t.mul_int(1_000_000).round_to_i64())?;
+    }
+    Ok(())
 }
 
 pub(crate) struct PowerDevice {
@@ -71,14 +88,21 @@ impl MiscDevice for PowerDevice {
     fn read_iter(mut kiocb: Kiocb<'_, Self::Ptr>, iov: &mut IovIterDest<'_>) -> Result<usize> {
         let sh = &kiocb.file().f.shared;
         let st = arm_status(sh);
-        let mut text = crate::stats::TextBuf::<64>::new();
-        let _ = writeln!(
+        let line = &sh.motor_line;
+        let gate = line.gate();
+        let mut text = crate::stats::TextBuf::<256>::new();
+        let _ = write!(
             text,
-            "power={} motors={} inhibited={}",
+            "power={} motors={} inhibited={} gate={} command=",
             u8::from(st & status::POWER_ON != 0),
             u8::from(st & status::MOTORS_ENABLED != 0),
-            u8::from(sh.inhibit_motors.load(Acquire))
+            u8::from(gate == Gate::FailSafe),
+            gate.name()
         );
+        let _ = write_torques(&mut text, &line.command());
+        let _ = write!(text, " applied=");
+        let _ = write_torques(&mut text, &line.applied());
+        let _ = writeln!(text);
         iov.simple_read_from_buffer(kiocb.ki_pos_mut(), text.as_bytes())
     }
 }

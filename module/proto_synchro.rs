@@ -8,6 +8,7 @@
 use crate::{
     hap_core::{
         cycle::{CycleResult, ServoCycle},
+        io::MotorLine,
         protocol::MAX_FRAME_LEN,
         servo::{ServoInputs, ServoMode},
     },
@@ -18,6 +19,7 @@ use kernel::sync::atomic::Relaxed;
 pub(crate) fn run_cycle(
     sh: &Shared,
     data: &mut ServoData,
+    line: &MotorLine,
     inputs: &ServoInputs,
     mode: ServoMode,
 ) -> CycleResult {
@@ -26,7 +28,7 @@ pub(crate) fn run_cycle(
     let vpr = proto.as_ref().map(|p| *p.vpr());
     drop(proto);
     let config = data.config;
-    let result = data.cycle.run(inputs, &config, vpr.as_ref(), mode);
+    let result = data.cycle.run(line, inputs, &config, vpr.as_ref(), mode);
 
     // send_vp
     let Some(proto) = sh.proto.try_lock() else {

@@ -6,7 +6,9 @@
 //! between the synchronizer's `receive_vp` and `send_vp`, then logs the
 //! simulator's position. The main and the auxiliary (degraded) path are the
 //! same code (spec §3.5); CLOCK's supervisor picks the mode.
-//! No allocation, no printk, no sleeping lock but `mtx_data` inside the cycle.
+//! No allocation and no printk inside the cycle. Motor commands go through
+//! hap_io's motor line (`Shared::motor_line`), which is outside every lock:
+//! the fail-safe cuts it whatever SERVO is doing.
 
 use crate::{
     completion::Wait,
@@ -34,10 +36,13 @@ pub(crate) fn servo_main(sh: &Shared) {
         sh.servo_start_ns.store(sh.now_ns(), Release);
 
         let mut data = sh.data.lock();
+        if inject_fault(sh) == Injected::Hung {
+            // The hung SERVO is released only by rmmod: it never finishes.
+            break;
+        }
         servo_cycle(sh, &mut data);
         drop(data);
 
-        inject_overrun(sh);
         sh.servo_end_ns.store(sh.now_ns(), Release);
         sh.servo_done_tick.store(tick, Release);
         sh.servo_working.store(false, Release);
@@ -56,13 +61,6 @@ pub(crate) fn calibrate(sh: &Shared) {
 }
 
 fn servo_cycle(sh: &Shared, data: &mut ServoData) {
-    // Fail-safe lines cut by CLOCK while SERVO was busy.
-    if sh.inhibit_motors.load(Acquire) {
-        data.cycle.servo.inhibit_motors();
-    }
-    if sh.arm_power_cut.load(Acquire) {
-        data.cycle.servo.power_off();
-    }
     // Configuration: a fresh copy unless PROTO_IN is writing it.
     match sh.config.try_read() {
         Some(cfg) => data.config = *cfg,
@@ -71,7 +69,8 @@ fn servo_cycle(sh: &Shared, data: &mut ServoData) {
         }
     }
     let power_request = match sh.power_request.xchg(0, Relaxed) {
-        1 if !sh.inhibit_motors.load(Acquire) => PowerRequest::On,
+        // After a fail-safe the motor line refuses a power-on by itself.
+        1 => PowerRequest::On,
         2 => PowerRequest::Off,
         _ => PowerRequest::None,
     };
@@ -88,7 +87,7 @@ fn servo_cycle(sh: &Shared, data: &mut ServoData) {
         ServoMode::Degraded
     };
 
-    let result = proto_synchro::run_cycle(sh, data, &inputs, mode);
+    let result = proto_synchro::run_cycle(sh, data, &sh.motor_line, &inputs, mode);
     sh.last_status.store(result.vp.status, Relaxed);
     if result.extrapolated {
         sh.vpr_extrapolated.add(1, Relaxed);
@@ -99,12 +98,32 @@ fn servo_cycle(sh: &Shared, data: &mut ServoData) {
     sh.simlog.push_overwrite(&rec);
 }
 
-/// Fault injection (`/dev/hap_fault`): stay busy past the 3/4 check, outside
-/// `mtx_data` so that the fail-safe can still take it.
-fn inject_overrun(sh: &Shared) {
+/// What the fault injection did to this cycle.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Injected {
+    Nothing,
+    /// Stayed busy past the 3/4 check, then let the cycle run (late).
+    Overrun,
+    /// Hung until the module is removed.
+    Hung,
+}
+
+/// Fault injection (`/dev/hap_fault`), called with `mtx_data` held, before
+/// the cycle's work: the real fault is a cycle that takes too long (or never
+/// ends) while holding SERVO's data, with the last motor command still on
+/// the line. `overrun N`: stay busy past the 3/4 check, then run the cycle
+/// late; `hang`: never finish, blocked (as in a deadlock) until rmmod stops
+/// the thread.
+fn inject_fault(sh: &Shared) -> Injected {
+    if sh.fault_hang.load(Acquire) {
+        while !kthread::should_stop() {
+            kernel::time::delay::fsleep(kernel::time::Delta::from_millis(1));
+        }
+        return Injected::Hung;
+    }
     let left = sh.fault_overruns.load(Acquire);
     if left == 0 {
-        return;
+        return Injected::Nothing;
     }
     sh.fault_overruns.store(left.saturating_sub(1), Release);
     let until = sh
@@ -114,4 +133,5 @@ fn inject_overrun(sh: &Shared) {
     while sh.now_ns() < until && !sh.is_stopping() {
         kernel::time::delay::udelay(kernel::time::Delta::from_micros(5));
     }
+    Injected::Overrun
 }

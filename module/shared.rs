@@ -8,7 +8,8 @@
 use crate::{
     completion::Completion,
     hap_core::{
-        config::ServoConfig, cycle::ServoCycle, proto_in::ProtoIn, protocol::MAX_FRAME_LEN,
+        config::ServoConfig, cycle::ServoCycle, io::MotorLine, proto_in::ProtoIn,
+        protocol::MAX_FRAME_LEN,
         simulator::LogRecord, stats::HapStats,
     },
     rtf::{RtFifo, RtfInCounters, RTF_FRAMES},
@@ -108,15 +109,19 @@ pub(crate) struct Shared {
     pub(crate) stop_request: Atomic<bool>,
     /// Power request for the arm: 0 none, 1 on, 2 off (consumed by SERVO).
     pub(crate) power_request: Atomic<u32>,
-    /// Fail-safe lines: motor commands inhibited, arm supply off.
-    pub(crate) inhibit_motors: Atomic<bool>,
-    pub(crate) arm_power_cut: Atomic<bool>,
+    /// hap_io's motor line (gate, supply, the DAC's command): outside every
+    /// lock. SERVO writes commands through it, the simulated motors read it
+    /// at every sub-step, the fail-safe cuts it with two stores.
+    pub(crate) motor_line: MotorLine,
     /// Status bits of the last answer (for /dev/hap_power and stats).
     pub(crate) last_status: Atomic<u32>,
     /// Set at teardown and by the fail-safe: every task leaves its loop.
     pub(crate) stopping: Atomic<bool>,
-    /// Fault injection: SERVO overruns this many more cycles.
+    /// Fault injection: SERVO overruns this many more cycles, inside `mtx_data`.
     pub(crate) fault_overruns: Atomic<u32>,
+    /// Fault injection: SERVO hangs inside its cycle, holding `mtx_data`,
+    /// until the module is removed.
+    pub(crate) fault_hang: Atomic<bool>,
     /// Servo cycle at which the effort sequence was (re)loaded / power requested.
     pub(crate) effort_loaded_cycle: Atomic<u64>,
     pub(crate) power_on_cycle: Atomic<u64>,
@@ -175,11 +180,11 @@ impl Shared {
             state: Atomic::new(state::RUNNING),
             stop_request: Atomic::new(false),
             power_request: Atomic::new(0),
-            inhibit_motors: Atomic::new(false),
-            arm_power_cut: Atomic::new(false),
+            motor_line: MotorLine::new(),
             last_status: Atomic::new(0),
             stopping: Atomic::new(false),
             fault_overruns: Atomic::new(0),
+            fault_hang: Atomic::new(false),
             effort_loaded_cycle: Atomic::new(NEVER),
             power_on_cycle: Atomic::new(NEVER),
             answer_seq: Atomic::new(0),

@@ -132,11 +132,13 @@ fn render(sh: &Shared, out: &mut [u8]) -> usize {
             "motors_enabled: {}",
             u8::from(status & crate::hap_core::vp::status::MOTORS_ENABLED != 0)
         )?;
+        let gate = sh.motor_line.gate();
         writeln!(
             w,
             "motors_inhibited: {}",
-            u8::from(sh.inhibit_motors.load(Acquire))
+            u8::from(gate == crate::hap_core::io::Gate::FailSafe)
         )?;
+        writeln!(w, "motor_gate: {}", gate.name())?;
         writeln!(w, "session: {session}")?;
         writeln!(w, "sessions_opened: {}", proto_counters.sessions_opened)?;
         writeln!(w, "vpr_frames: {}", proto_counters.vpr_frames)?;

@@ -21,6 +21,11 @@ done
 
 bash "$HERE/setup-toolchain.sh" >&2
 KDIR=$(hap_kernel_dir "$variant")
+# One build of a cache directory at a time: a second caller waits for the
+# first, then reuses its result.
+mkdir -p "$(dirname "$KDIR")"
+exec 9>"$KDIR.lock"
+flock 9
 if [ -f "$KDIR/.hap-built" ] && [ -f "$KDIR/arch/x86/boot/bzImage" ]; then
   log "kernel ${variant:-base} reused from cache: $KDIR"
   echo "$KDIR"; exit 0

@@ -5,14 +5,14 @@ use hap_core::arm;
 use hap_core::config::{CommandType, ServoConfig};
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench, JOINTS_ZERO};
-use hap_core::servo::{PowerRequest, Servo, ServoInputs, ServoMode};
+use hap_core::servo::{PowerRequest, ServoInputs, ServoMode, StandaloneServo};
 use hap_core::simulator::LogRecord;
 use hap_core::vp::VpReceived;
 use std::hint::black_box;
 use std::time::Instant;
 
 fn main() {
-    let mut s = Servo::new(1_000_000);
+    let mut s = StandaloneServo::new(1_000_000);
     s.init();
     s.simulator_mut().set_state(&arm::WORK_Q, &JOINTS_ZERO);
     let cfg = ServoConfig {

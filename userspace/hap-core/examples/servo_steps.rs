@@ -15,6 +15,7 @@ use hap_core::config::{CommandType, ServoConfig};
 use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench};
+use hap_core::io::MotorLine;
 use hap_core::protocol::MAX_FRAME_LEN;
 use hap_core::servo::{PowerRequest, ServoInputs, ServoMode};
 use hap_core::simulator::LogRecord;
@@ -23,6 +24,7 @@ use std::hint::black_box;
 /// The scripted world: effort, VPr and the output buffers of one cycle.
 struct Script {
     cycle: ServoCycle,
+    line: MotorLine,
     cfg: ServoConfig,
     vpr: hap_core::vp::VpReceived,
     frames: [[u8; MAX_FRAME_LEN]; 2],
@@ -46,6 +48,7 @@ impl Script {
         };
         let mut s = Script {
             cycle,
+            line: MotorLine::new(),
             cfg,
             vpr,
             frames: [[0u8; MAX_FRAME_LEN]; 2],
@@ -90,6 +93,7 @@ impl Script {
         self.vpr.seq = i;
         self.vpr.received_cycle = self.cycle.servo.cycle();
         let r = self.cycle.run(
+            &self.line,
             black_box(&inputs),
             &self.cfg,
             Some(&self.vpr),

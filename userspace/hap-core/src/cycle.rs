@@ -9,6 +9,7 @@
 
 use super::config::ServoConfig;
 use super::fixed::Fx;
+use super::io::MotorLine;
 use super::proto_synchro::{answer_frame, answer_twist_frame, fade_wrench, twist_due, Synchro};
 use super::protocol::{encode, FrameHeader, MAX_FRAME_LEN};
 use super::servo::{Servo, ServoInputs, ServoMode};
@@ -47,10 +48,12 @@ impl ServoCycle {
         self.period_us
     }
 
-    /// Run one cycle. `vpr_shared` is the VPr shared memory when the protocol
+    /// Run one cycle. `line` is hap_io's motor line (outside every lock, see
+    /// `io`). `vpr_shared` is the VPr shared memory when the protocol
     /// try-lock succeeded, `None` when it was busy.
     pub fn run(
         &mut self,
+        line: &MotorLine,
         inputs: &ServoInputs,
         config: &ServoConfig,
         vpr_shared: Option<&VpReceived>,
@@ -65,7 +68,7 @@ impl ServoCycle {
         if est.link_gain == Fx::ZERO {
             vpr.valid = false;
         }
-        let mut vp = *self.servo.step(inputs, config, &vpr, mode);
+        let mut vp = *self.servo.step(line, inputs, config, &vpr, mode);
         vp.coupling_wrench = fade_wrench(&vp.coupling_wrench, est.link_gain);
         vp.status |= est.status;
         CycleResult {
@@ -109,6 +112,7 @@ mod tests {
 
     #[test]
     fn silent_link_fades_to_no_coupling_and_answers_decode() {
+        let line = MotorLine::new();
         let mut c = ServoCycle::new(1000);
         let cfg = ServoConfig::default();
         let vpr = VpReceived {
@@ -120,7 +124,7 @@ mod tests {
             power_request: PowerRequest::On,
             live_effort: None,
         };
-        let r = c.run(&on, &cfg, Some(&vpr), ServoMode::Main);
+        let r = c.run(&line, &on, &cfg, Some(&vpr), ServoMode::Main);
         assert_eq!(r.link_gain, Fx::ONE);
         // Lock busy for a long time: the estimate ages, the gain reaches 0.
         let none = ServoInputs {
@@ -129,7 +133,7 @@ mod tests {
         };
         let mut last = r;
         for _ in 0..200 {
-            last = c.run(&none, &cfg, None, ServoMode::Main);
+            last = c.run(&line, &none, &cfg, None, ServoMode::Main);
         }
         assert!(last.extrapolated);
         assert_eq!(last.link_gain, Fx::ZERO);
@@ -160,13 +164,14 @@ mod tests {
         let cfg = ServoConfig::default();
         let mut a = ServoCycle::new(1000);
         let mut b = ServoCycle::new(1000);
+        let (la, lb) = (MotorLine::new(), MotorLine::new());
         let inp = ServoInputs {
             power_request: PowerRequest::None,
             live_effort: None,
         };
         for _ in 0..500 {
-            let ra = a.run(&inp, &cfg, None, ServoMode::Main);
-            let rb = b.run(&inp, &cfg, None, ServoMode::Main);
+            let ra = a.run(&la, &inp, &cfg, None, ServoMode::Main);
+            let rb = b.run(&lb, &inp, &cfg, None, ServoMode::Main);
             assert_eq!(ra, rb);
         }
     }

@@ -23,8 +23,8 @@
 use super::config::ServoConfig;
 use super::control::{cartesian_control, Controller};
 use super::effort::{EffortKeyframe, EffortParseError, EffortPlayer, EffortSample};
-use super::fixed::{Fx, JOINTS_ZERO};
-use super::io::Io;
+use super::fixed::Fx;
+use super::io::{self, MotorLine};
 use super::simulator::{LogRecord, Simulator};
 use super::state_model::{build_logical_state, build_physical_state};
 use super::vp::{alarm, status, VpReceived, VpSent};
@@ -68,6 +68,8 @@ pub mod log_flags {
     pub const BUTTON_2: u16 = 1 << 4;
     pub const DEGRADED: u16 = 1 << 5;
     pub const COUPLED: u16 = 1 << 6;
+    /// The fail-safe had cut the motor line during this period.
+    pub const LINE_CUT: u16 = 1 << 7;
 }
 
 /// Everything the servo loop owns.
@@ -77,7 +79,6 @@ pub struct Servo {
     period: Fx,
     initialized: bool,
     sim: Simulator,
-    io: Io,
     ctrl: Controller,
     effort: EffortPlayer,
     cycle: u64,
@@ -105,7 +106,6 @@ impl Servo {
             period: Fx::from_ns(period_ns as u64),
             initialized: false,
             sim: Simulator::new(period_ns),
-            io: Io::new(),
             ctrl: Controller::new(),
             effort: EffortPlayer::new(),
             cycle: 0,
@@ -116,12 +116,12 @@ impl Servo {
     }
 
     /// Initialise: calibrate the simulated arm to its rest configuration,
-    /// controller filters and gains, motor commands inhibited, cycle 0. The
-    /// loaded effort sequence is kept (playback restarts).
+    /// controller filters and gains, cycle 0. The loaded effort sequence is
+    /// kept (playback restarts). The motor line is the caller's (a new
+    /// [`MotorLine`] is inhibited and unpowered).
     pub fn init(&mut self) {
         self.sim = Simulator::new(self.period_ns);
         self.sim.calibrate();
-        self.io.reset();
         self.ctrl.init(self.period);
         self.cycle = 0;
         self.alarms = 0;
@@ -166,10 +166,6 @@ impl Servo {
         &mut self.ctrl
     }
 
-    pub fn io(&self) -> &Io {
-        &self.io
-    }
-
     pub fn effort(&self) -> &EffortPlayer {
         &self.effort
     }
@@ -193,22 +189,6 @@ impl Servo {
         self.effort.set_live(e);
     }
 
-    /// Fail-safe action 1: inhibit motor commands (latched until `init`).
-    pub fn inhibit_motors(&mut self) {
-        self.io.fail_safe_inhibit(&mut self.sim);
-        self.alarms |= alarm::FAIL_SAFE;
-    }
-
-    /// Fail-safe action 2: power off the simulated arm supply.
-    pub fn power_off(&mut self) {
-        self.io.power_off(&mut self.sim);
-    }
-
-    /// Record a deadline miss in the alarm bits (the supervisor's decision).
-    pub fn note_deadline_miss(&mut self) {
-        self.alarms |= alarm::DEADLINE_MISS;
-    }
-
     /// Latched alarms.
     pub fn alarms(&self) -> u32 {
         self.alarms
@@ -219,9 +199,12 @@ impl Servo {
         self.cycle.saturating_mul(self.period_ns as u64) / 1000
     }
 
-    /// One servo step. Returns the answer (VP) for the client.
+    /// One servo step. Returns the answer (VP) for the client. `line` is
+    /// hap_io's motor line: commands go through it, the simulated motors
+    /// read it at every sub-step, the fail-safe cuts it without this call.
     pub fn step(
         &mut self,
+        line: &MotorLine,
         inputs: &ServoInputs,
         config: &ServoConfig,
         vpr: &VpReceived,
@@ -234,15 +217,13 @@ impl Servo {
         match inputs.power_request {
             PowerRequest::None => {}
             PowerRequest::On => {
-                let was = self.sim.powered();
-                if self.io.power_request(&mut self.sim, true) && !was {
+                let was = line.supply_on();
+                if line.power_on() && !was {
                     // A power cycle clears the latched alarms.
                     self.alarms &= alarm::FAIL_SAFE;
                 }
             }
-            PowerRequest::Off => {
-                self.io.power_request(&mut self.sim, false);
-            }
+            PowerRequest::Off => line.power_request_off(),
         }
         // The user's effort for this period.
         let t_us = self.time_us();
@@ -252,12 +233,16 @@ impl Servo {
         };
         self.sim.set_user_effort(&user);
 
-        let m = self.io.get_measures(&mut self.sim);
-        let ls = build_logical_state(&m, &self.io, config, mode, self.alarms);
+        if mode == ServoMode::Degraded {
+            // The supervisor puts SERVO on its degraded path after a miss.
+            self.alarms |= alarm::DEADLINE_MISS;
+        }
+        let m = io::get_measures(&mut self.sim, line);
+        let ls = build_logical_state(&m, line.gate(), config, mode, self.alarms);
         let ps = build_physical_state(&m);
         let out = cartesian_control(&mut self.ctrl, &ls, &ps, config, vpr);
-        let applied = self.io.send_commands(&mut self.sim, &out.joint_torques);
-        self.sim.simulate_arm();
+        io::send_commands(line, &out.joint_torques);
+        self.sim.simulate_arm(line);
 
         self.alarms = ls.alarms | out.alarms;
         let st = ls.status | out.status;
@@ -284,6 +269,9 @@ impl Servo {
                 flags |= lf;
             }
         }
+        if self.sim.line_cut() {
+            flags |= log_flags::LINE_CUT;
+        }
         let o = ps.handle.orientation;
         self.log = LogRecord {
             flags,
@@ -292,11 +280,7 @@ impl Servo {
             qd: ps.qd,
             handle_position: ps.handle.position,
             handle_orientation: [o.x, o.y, o.z, o.w],
-            motor_torque: if self.sim.powered() {
-                applied
-            } else {
-                JOINTS_ZERO
-            },
+            motor_torque: self.sim.applied_torques(),
             user_wrench: user.wrench.to_array(),
             status: st,
             alarms: self.alarms,
@@ -305,5 +289,48 @@ impl Servo {
         };
         self.cycle = self.cycle.wrapping_add(1);
         &self.vp
+    }
+}
+
+/// A servo with its own motor line, for host tools, tests and replays, where
+/// nothing outside the servo cuts the line (the kernel keeps its line outside
+/// `mtx_data` and calls [`Servo::step`] with it). `step` here is that same
+/// call; everything else of [`Servo`] is reached through `Deref`.
+#[derive(Clone, Debug)]
+pub struct StandaloneServo {
+    pub servo: Servo,
+    pub line: MotorLine,
+}
+
+impl StandaloneServo {
+    pub const fn new(period_ns: u32) -> StandaloneServo {
+        StandaloneServo {
+            servo: Servo::new(period_ns),
+            line: MotorLine::new(),
+        }
+    }
+
+    /// [`Servo::step`] on this servo's own line.
+    pub fn step(
+        &mut self,
+        inputs: &ServoInputs,
+        config: &ServoConfig,
+        vpr: &VpReceived,
+        mode: ServoMode,
+    ) -> &VpSent {
+        self.servo.step(&self.line, inputs, config, vpr, mode)
+    }
+}
+
+impl core::ops::Deref for StandaloneServo {
+    type Target = Servo;
+    fn deref(&self) -> &Servo {
+        &self.servo
+    }
+}
+
+impl core::ops::DerefMut for StandaloneServo {
+    fn deref_mut(&mut self) -> &mut Servo {
+        &mut self.servo
     }
 }

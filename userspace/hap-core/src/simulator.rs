@@ -5,7 +5,8 @@
 //! period with `SUBSTEPS` semi-implicit Euler sub-steps:
 //!
 //! ```text
-//! τ = τ_motor (0 when unpowered) + Jᵀ·w_user + τ_gravity          (once per period)
+//! τ = Jᵀ·w_user + τ_gravity                                       (once per period)
+//!     + τ_motor (the motor line, read now: 0 unless enabled and powered)
 //!     − b·q̇ − fc·sat(q̇/0.01) + τ_stop(q, q̇)                      (every sub-step)
 //! q̇ ← q̇ + dt·τ / I(q)      q ← q + dt·q̇                           (dt = period / SUBSTEPS)
 //! ```
@@ -16,14 +17,17 @@
 //! force sensor (the user's wrench expressed in the handle frame), and the
 //! power / dead-man / button state.
 //!
-//! Power: the simulated arm supply is switched by [`Simulator::set_power`];
-//! unpowered, the motors produce no torque whatever is commanded, so the arm
+//! Motors: the torque they produce is read from hap_io's
+//! [`MotorLine`] at every sub-step, so a fail-safe cut takes effect at the
+//! next sub-step whatever the servo is doing. Unpowered, inhibited or cut,
+//! the motors produce no torque whatever was commanded, so the arm
 //! moves only under gravity, the user's effort and its stops; left alone it
 //! settles to [`super::arm::REST_Q`] (shoulder on its stop, forearm hanging).
 
 use super::arm::{self, Kinematics};
 use super::effort::EffortSample;
 use super::fixed::{Fx, Joints, Vec3, Wrench, JOINTS_ZERO};
+use super::io::{Gate, MotorLine};
 
 /// Integration sub-steps per servo period.
 pub const SUBSTEPS: u32 = 4;
@@ -54,8 +58,10 @@ pub struct Simulator {
     pub q: Joints,
     /// Joint speeds, rad/s.
     pub qd: Joints,
-    powered: bool,
-    motor_torque: Joints,
+    /// Torques the motors produced in the last sub-step of the last period.
+    applied: Joints,
+    /// The motor line was cut by the fail-safe during the last period.
+    line_cut: bool,
     period: Fx,
     user: EffortSample,
     kin: Kinematics,
@@ -69,8 +75,8 @@ impl Simulator {
         Simulator {
             q: arm::REST_Q,
             qd: JOINTS_ZERO,
-            powered: false,
-            motor_torque: JOINTS_ZERO,
+            applied: JOINTS_ZERO,
+            line_cut: false,
             period: Fx::from_ns(period_ns as u64),
             user: EffortSample::NONE,
             kin: Kinematics::ZERO,
@@ -95,42 +101,15 @@ impl Simulator {
         self.period
     }
 
-    /// Switch the arm supply; switching off also drops the motor command.
-    pub fn set_power(&mut self, on: bool) {
-        self.powered = on;
-        if !on {
-            self.motor_torque = JOINTS_ZERO;
-        }
+    /// The torques the motors produced in the last sub-step of the last
+    /// `simulate_arm` (what the position log records).
+    pub fn applied_torques(&self) -> Joints {
+        self.applied
     }
 
-    pub fn powered(&self) -> bool {
-        self.powered
-    }
-
-    /// Latch motor torques for the next `simulate_arm` (clamped to the motor
-    /// limits; ignored while unpowered).
-    pub fn set_motor_torques(&mut self, tau: &Joints) {
-        if !self.powered {
-            self.motor_torque = JOINTS_ZERO;
-            return;
-        }
-        for ((m, t), lim) in self
-            .motor_torque
-            .iter_mut()
-            .zip(tau.iter())
-            .zip(arm::TAU_MAX.iter())
-        {
-            *m = t.clamp_abs(*lim);
-        }
-    }
-
-    /// The torques the motors actually produce.
-    pub fn motor_torques(&self) -> Joints {
-        if self.powered {
-            self.motor_torque
-        } else {
-            JOINTS_ZERO
-        }
+    /// The fail-safe had cut the motor line at some sub-step of the last period.
+    pub fn line_cut(&self) -> bool {
+        self.line_cut
     }
 
     /// The user's action for the coming period.
@@ -151,8 +130,8 @@ impl Simulator {
         &self.kin
     }
 
-    /// The hardware's view of the arm now.
-    pub fn measures(&mut self) -> Measures {
+    /// The hardware's view of the arm now (`line`: the supply's state).
+    pub fn measures(&mut self, line: &MotorLine) -> Measures {
         let user = self.user;
         let rot = self.kinematics().handle_rot;
         Measures {
@@ -162,32 +141,38 @@ impl Simulator {
                 force: rot.tmul_vec(user.wrench.force),
                 torque: rot.tmul_vec(user.wrench.torque),
             },
-            power_on: self.powered,
+            power_on: line.supply_on(),
             dead_man: user.dead_man,
             buttons: user.buttons,
             joint_limit: self.joint_limit,
         }
     }
 
-    /// `simulate_arm`: advance the arm by one servo period.
+    /// `simulate_arm`: advance the arm by one servo period. The motors'
+    /// torque is read from `line` at every sub-step.
     #[allow(clippy::needless_range_loop)]
-    pub fn simulate_arm(&mut self) {
-        let motor = self.motor_torques();
+    pub fn simulate_arm(&mut self, line: &MotorLine) {
         let kin = *self.kinematics();
         let user_tau = arm::jacobian_transpose_mul(&kin.jacobian, &self.user.wrench);
         let dt = Fx(self.period.0 / SUBSTEPS as i64);
         let mut base = JOINTS_ZERO;
         let mut dt_over_i = JOINTS_ZERO;
         for i in 0..6 {
-            base[i] = motor[i].add_sat(user_tau[i]).add_sat(kin.gravity[i]);
+            base[i] = user_tau[i].add_sat(kin.gravity[i]);
             dt_over_i[i] = dt.div_sat(kin.inertia[i]);
         }
         let coulomb_gain = COULOMB_GAIN;
         let mut limit = false;
+        let mut cut = false;
         for _ in 0..SUBSTEPS {
+            // The motors apply what the line lets through, now.
+            let motor = line.applied();
+            cut |= line.gate() == Gate::FailSafe;
+            self.applied = motor;
             for i in 0..6 {
                 let (q, qd) = (self.q[i], self.qd[i]);
                 let mut tau = base[i]
+                    .add_sat(motor[i])
                     .sub_sat(arm::DAMPING[i].mul_sat(qd))
                     .sub_sat(arm::COULOMB[i].mul_sat(qd.mul_sat(coulomb_gain).clamp_abs(Fx::ONE)));
                 if q > arm::Q_MAX[i] {
@@ -209,6 +194,7 @@ impl Simulator {
             }
         }
         self.joint_limit = limit;
+        self.line_cut = cut;
         self.kin_valid = false;
     }
 }
@@ -229,7 +215,7 @@ const COULOMB_GAIN: Fx = Fx::from_int(100);
 /// | 64 | 48 | joint speeds q̇, 6 × i64 Q32.32 rad/s |
 /// | 112 | 24 | handle position, 3 × i64 Q32.32 m (arm base frame) |
 /// | 136 | 32 | handle orientation x, y, z, w, 4 × i64 Q32.32 |
-/// | 168 | 48 | motor torques applied, 6 × i64 Q32.32 N·m |
+/// | 168 | 48 | motor torques applied (last sub-step of the period), 6 × i64 Q32.32 N·m |
 /// | 216 | 48 | user wrench fx fy fz tx ty tz, 6 × i64 Q32.32 (base frame) |
 /// | 264 | 4 | status bits (`vp::status`) |
 /// | 268 | 4 | alarm bits (`vp::alarm`) |

@@ -6,7 +6,7 @@
 use super::arm::{self, Kinematics};
 use super::config::{CommandType, IndexingMode, ServoConfig};
 use super::fixed::{Joints, Pose, Twist, Wrench};
-use super::io::Io;
+use super::io::Gate;
 use super::servo::ServoMode;
 use super::simulator::Measures;
 use super::vp::{alarm, status};
@@ -34,12 +34,12 @@ pub struct LogicalState {
 /// `build_logical_state`.
 pub fn build_logical_state(
     m: &Measures,
-    io: &Io,
+    gate: Gate,
     config: &ServoConfig,
     mode: ServoMode,
     latched_alarms: u32,
 ) -> LogicalState {
-    let motors_enabled = io.motors_enabled() && m.power_on;
+    let motors_enabled = gate == Gate::Enabled && m.power_on;
     let indexing = m.buttons & 1 != 0 && config.indexing_mode != IndexingMode::None;
     let mut st = 0;
     if m.power_on {
@@ -64,7 +64,7 @@ pub fn build_logical_state(
     if m.joint_limit {
         alarms |= alarm::JOINT_LIMIT;
     }
-    if io.fail_safe() {
+    if gate == Gate::FailSafe {
         alarms |= alarm::FAIL_SAFE;
     }
     LogicalState {

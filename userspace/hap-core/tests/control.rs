@@ -7,7 +7,7 @@ use hap_core::config::{CommandType, IndexingMode, ServoConfig, VirtualObjectPara
 use hap_core::control::{Gains, MAX_FORCE, MAX_TORQUE};
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
-use hap_core::servo::{PowerRequest, Servo, ServoInputs, ServoMode};
+use hap_core::servo::{PowerRequest, ServoInputs, ServoMode, StandaloneServo};
 use hap_core::vp::{alarm, status, VpReceived};
 use rand::{Rng, SeedableRng};
 
@@ -24,8 +24,8 @@ fn held(force: [f64; 3]) -> Option<EffortSample> {
     })
 }
 
-fn powered_servo_at_work() -> Servo {
-    let mut s = Servo::new(PERIOD_NS);
+fn powered_servo_at_work() -> StandaloneServo {
+    let mut s = StandaloneServo::new(PERIOD_NS);
     s.init();
     s.simulator_mut().set_state(&arm::WORK_Q, &JOINTS_ZERO);
     let cfg = ServoConfig::default();
@@ -172,7 +172,7 @@ fn stiff_wall_at_the_bound_is_stable_and_passive() {
 #[test]
 fn saturation_never_exceeded_over_1e6_randomized_cycles() {
     let mut rng = rand::rngs::StdRng::seed_from_u64(42);
-    let mut s = Servo::new(PERIOD_NS);
+    let mut s = StandaloneServo::new(PERIOD_NS);
     s.init();
     let mut cfg = ServoConfig {
         command_type: CommandType::Impedance,
@@ -252,7 +252,7 @@ fn saturation_never_exceeded_over_1e6_randomized_cycles() {
         for (t, l) in applied.iter().zip(tau_max.iter()) {
             assert!(t.abs() <= *l, "cycle {n}: torque {t:?} > {l:?}");
         }
-        let st = s.simulator().motor_torques();
+        let st = s.line.applied();
         for (t, l) in st.iter().zip(tau_max.iter()) {
             assert!(t.abs() <= *l);
         }

@@ -13,7 +13,8 @@ use hap_core::arm;
 use hap_core::config::ServoConfig;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Vec3, Wrench, JOINTS_ZERO};
-use hap_core::servo::{PowerRequest, Servo, ServoInputs, ServoMode};
+use hap_core::io::MotorLine;
+use hap_core::servo::{PowerRequest, ServoInputs, ServoMode, StandaloneServo};
 use hap_core::simulator::Simulator;
 use hap_core::vp::VpReceived;
 use nalgebra::Vector3;
@@ -73,7 +74,8 @@ fn kinematics_match_reference() {
 fn ten_seconds_of_scripted_effort_match_reference() {
     let period_ns = 1_000_000u32;
     let mut sim = Simulator::new(period_ns);
-    sim.set_power(true);
+    let line = MotorLine::new();
+    assert!(line.power_on());
     sim.set_state(&arm::WORK_Q, &JOINTS_ZERO);
     let mut rf = reference::RefSim {
         q: arm::WORK_Q.map(|v| v.to_f64()),
@@ -90,7 +92,7 @@ fn ten_seconds_of_scripted_effort_match_reference() {
         // Fixed side: gravity compensation computed in fixed point.
         let kin = arm::kinematics(&sim.q);
         let comp = kin.gravity.map(|g| -g);
-        sim.set_motor_torques(&comp);
+        line.write_command(&comp);
         let w = Wrench {
             force: Vec3::from_f64(f),
             torque: Vec3::from_f64(tq),
@@ -100,7 +102,7 @@ fn ten_seconds_of_scripted_effort_match_reference() {
             dead_man: true,
             buttons: 0,
         });
-        sim.simulate_arm();
+        sim.simulate_arm(&line);
         // Reference side.
         let kr = reference::kinematics(&rf.q);
         let comp_r = kr.gravity.map(|g| -g);
@@ -120,7 +122,7 @@ fn ten_seconds_of_scripted_effort_match_reference() {
 }
 
 fn run_free(gravity_compensation: bool) -> (f64, f64) {
-    let mut s = Servo::new(1_000_000);
+    let mut s = StandaloneServo::new(1_000_000);
     s.init();
     s.controller_mut().gravity_compensation = gravity_compensation;
     s.simulator_mut().set_state(&arm::WORK_Q, &JOINTS_ZERO);

@@ -6,7 +6,8 @@ use hap_core::arm;
 use hap_core::config::{CommandType, ServoConfig};
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench, JOINTS_ZERO};
-use hap_core::servo::{PowerRequest, Servo, ServoInputs, ServoMode};
+use hap_core::io::MotorLine;
+use hap_core::servo::{PowerRequest, Servo, ServoInputs, ServoMode, StandaloneServo};
 use hap_core::simulator::{LogDecodeError, LogRecord, Simulator};
 use hap_core::vp::{alarm, status, VpReceived};
 
@@ -48,7 +49,7 @@ fn servo_is_small_and_const_constructible() {
 #[test]
 fn power_off_the_arm_moves_only_under_gravity_and_the_user() {
     // Servo never powered, commanded hard toward a far object...
-    let mut s = Servo::new(PERIOD_NS);
+    let mut s = StandaloneServo::new(PERIOD_NS);
     s.init();
     s.load_effort_text(SCRIPT).unwrap();
     // ...and a bare unpowered simulator under the same effort.
@@ -67,7 +68,7 @@ fn power_off_the_arm_moves_only_under_gravity_and_the_user() {
         assert_eq!(s.log_record().motor_torque, JOINTS_ZERO);
         let e = player.sample(n * 1000);
         bare.set_user_effort(&e);
-        bare.simulate_arm();
+        bare.simulate_arm(&MotorLine::new());
         assert_eq!(s.simulator().q, bare.q, "cycle {n}");
     }
     // The user moved it.
@@ -80,7 +81,7 @@ fn power_off_the_arm_moves_only_under_gravity_and_the_user() {
     assert!(moved);
 
     // Left alone, the unpowered arm stays at rest (shoulder on its stop).
-    let mut s = Servo::new(PERIOD_NS);
+    let mut s = StandaloneServo::new(PERIOD_NS);
     for _ in 0..2000 {
         s.step(&ServoInputs::default(), &cfg, &vpr, ServoMode::Main);
     }
@@ -95,7 +96,7 @@ fn power_off_the_arm_moves_only_under_gravity_and_the_user() {
 
 #[test]
 fn power_on_enables_commands_and_power_off_inhibits_them() {
-    let mut s = Servo::new(PERIOD_NS);
+    let mut s = StandaloneServo::new(PERIOD_NS);
     let cfg = ServoConfig::default();
     let vpr = VpReceived::default();
     let vp = *s.step(&ServoInputs::default(), &cfg, &vpr, ServoMode::Main);
@@ -124,12 +125,12 @@ fn power_on_enables_commands_and_power_off_inhibits_them() {
     );
     assert_eq!(vp.status & (status::POWER_ON | status::MOTORS_ENABLED), 0);
     assert_eq!(s.log_record().motor_torque, JOINTS_ZERO);
-    assert_eq!(s.simulator().motor_torques(), JOINTS_ZERO);
+    assert_eq!(s.line.applied(), JOINTS_ZERO);
 }
 
 #[test]
 fn fail_safe_inhibits_for_good() {
-    let mut s = Servo::new(PERIOD_NS);
+    let mut s = StandaloneServo::new(PERIOD_NS);
     let cfg = impedance_cfg();
     let vpr = far_vpr();
     s.step(
@@ -141,10 +142,11 @@ fn fail_safe_inhibits_for_good() {
         &vpr,
         ServoMode::Main,
     );
-    s.inhibit_motors();
-    assert_eq!(s.simulator().motor_torques(), JOINTS_ZERO);
-    s.power_off();
-    assert!(!s.simulator().powered());
+    assert_ne!(s.line.applied(), JOINTS_ZERO);
+    s.line.fail_safe_inhibit();
+    assert_eq!(s.line.applied(), JOINTS_ZERO);
+    s.line.power_off();
+    assert!(!s.line.supply_on());
     let vp = *s.step(
         &ServoInputs {
             power_request: PowerRequest::On,
@@ -156,7 +158,8 @@ fn fail_safe_inhibits_for_good() {
     );
     assert_eq!(vp.status & (status::POWER_ON | status::MOTORS_ENABLED), 0);
     assert_ne!(vp.alarms & alarm::FAIL_SAFE, 0);
-    // init (module reload) clears it.
+    // A module reload (new line, servo init) clears it.
+    s.line.reset();
     s.init();
     let vp = *s.step(
         &ServoInputs {
@@ -172,7 +175,7 @@ fn fail_safe_inhibits_for_good() {
 
 #[test]
 fn degraded_mode_couples_softer_and_is_flagged() {
-    let mut s = Servo::new(PERIOD_NS);
+    let mut s = StandaloneServo::new(PERIOD_NS);
     s.init();
     s.simulator_mut().set_state(&arm::WORK_Q, &JOINTS_ZERO);
     let cfg = impedance_cfg();
@@ -222,7 +225,7 @@ fn degraded_mode_couples_softer_and_is_flagged() {
 }
 
 fn scripted_run() -> Vec<[u8; LogRecord::SIZE]> {
-    let mut s = Servo::new(PERIOD_NS);
+    let mut s = StandaloneServo::new(PERIOD_NS);
     s.init();
     s.load_effort_text(SCRIPT).unwrap();
     let cfg = impedance_cfg();
@@ -283,7 +286,7 @@ fn two_runs_of_the_same_script_give_identical_log_records() {
 
 #[test]
 fn log_record_round_trip_and_errors() {
-    let mut s = Servo::new(PERIOD_NS);
+    let mut s = StandaloneServo::new(PERIOD_NS);
     s.load_effort_text(SCRIPT).unwrap();
     for _ in 0..500 {
         s.step(

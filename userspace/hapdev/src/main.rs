@@ -549,7 +549,61 @@ fn cmd_simlog(
         println!("handle_moved_um: {:.3}", d * 1e6);
         println!("max_abs_motor_torque_mNm: {:.3}", tau_max * 1000.0);
     }
+    let decoded: Vec<LogRecord> = recs
+        .iter()
+        .filter_map(|r| LogRecord::decode(r).ok())
+        .collect();
+    print!("{}", CutSummary::of(&decoded).render());
     Ok(())
+}
+
+/// The motor line as the position log saw it: records before the
+/// fail-safe's cut, records from the first one flagged `LINE_CUT` on, and
+/// how many of each carry a non-zero applied torque.
+#[derive(Debug, Default, PartialEq, Eq)]
+struct CutSummary {
+    first_cut_cycle: Option<u64>,
+    records_before_cut: usize,
+    torque_nonzero_before_cut: usize,
+    records_from_cut: usize,
+    torque_nonzero_from_cut: usize,
+    unflagged_after_cut: usize,
+}
+
+impl CutSummary {
+    fn of(recs: &[LogRecord]) -> CutSummary {
+        let mut s = CutSummary::default();
+        for r in recs {
+            let nonzero = r.motor_torque.iter().any(|t| t.0 != 0);
+            let cut = r.flags & hap_core::servo::log_flags::LINE_CUT != 0;
+            if s.first_cut_cycle.is_none() && cut {
+                s.first_cut_cycle = Some(r.cycle);
+            }
+            if s.first_cut_cycle.is_some() {
+                s.records_from_cut += 1;
+                s.torque_nonzero_from_cut += usize::from(nonzero);
+                s.unflagged_after_cut += usize::from(!cut);
+            } else {
+                s.records_before_cut += 1;
+                s.torque_nonzero_before_cut += usize::from(nonzero);
+            }
+        }
+        s
+    }
+
+    fn render(&self) -> String {
+        format!(
+            "first_cut_cycle: {}\nrecords_before_cut: {}\ntorque_nonzero_before_cut: {}\n\
+             records_from_cut: {}\ntorque_nonzero_from_cut: {}\nunflagged_after_cut: {}\n",
+            self.first_cut_cycle
+                .map_or_else(|| "none".to_string(), |c| c.to_string()),
+            self.records_before_cut,
+            self.torque_nonzero_before_cut,
+            self.records_from_cut,
+            self.torque_nonzero_from_cut,
+            self.unflagged_after_cut
+        )
+    }
 }
 
 fn cmd_replay(effort: &str, load_cycle: u64, guest: &str, period_us: u32) -> Result<bool, String> {
@@ -576,6 +630,7 @@ fn cmd_replay(effort: &str, load_cycle: u64, guest: &str, period_us: u32) -> Res
     };
     let config = hap_core::config::ServoConfig::default();
     let invalid = hap_core::vp::VpReceived::default();
+    let line = hap_core::io::MotorLine::new();
     let mut replay = std::collections::HashMap::new();
     while c.servo.cycle() <= last {
         if c.servo.cycle() == load_cycle {
@@ -586,7 +641,7 @@ fn cmd_replay(effort: &str, load_cycle: u64, guest: &str, period_us: u32) -> Res
                 )
             })?;
         }
-        c.run(&inputs, &config, Some(&invalid), ServoMode::Main);
+        c.run(&line, &inputs, &config, Some(&invalid), ServoMode::Main);
         let mut rec = [0u8; LogRecord::SIZE];
         c.servo.log_record().encode(&mut rec);
         let cyc = c.servo.log_record().cycle;
@@ -670,5 +725,38 @@ fn main() -> ExitCode {
             eprintln!("hapdev: {e}");
             ExitCode::from(2)
         }
+    }
+}
+
+#[cfg(test)]
+mod cut_summary_tests {
+    use super::*;
+    use hap_core::servo::log_flags::LINE_CUT;
+
+    fn rec(cycle: u64, tau: i64, flags: u16) -> LogRecord {
+        LogRecord {
+            cycle,
+            flags,
+            motor_torque: [Fx(tau); 6],
+            ..LogRecord::ZERO
+        }
+    }
+
+    #[test]
+    fn counts_torque_on_each_side_of_the_cut() {
+        let recs = [
+            rec(1, 5, 0),
+            rec(2, 0, 0),
+            rec(3, 0, LINE_CUT),
+            rec(4, 7, LINE_CUT),
+            rec(5, 0, 0),
+        ];
+        let s = CutSummary::of(&recs);
+        assert_eq!(s.first_cut_cycle, Some(3));
+        assert_eq!((s.records_before_cut, s.torque_nonzero_before_cut), (2, 1));
+        assert_eq!((s.records_from_cut, s.torque_nonzero_from_cut), (3, 1));
+        assert_eq!(s.unflagged_after_cut, 1);
+        assert!(s.render().contains("torque_nonzero_from_cut: 1\n"));
+        assert_eq!(CutSummary::of(&recs[..2]).first_cut_cycle, None);
     }
 }
