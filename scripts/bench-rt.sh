@@ -64,7 +64,6 @@ if [ "$host" = 1 ]; then
   krel=$(uname -r)
   [ "${CI:-}" != true ] || refuse "CI=true: the host bench never runs in CI"
   [ "$(id -u)" = 0 ] || refuse "it inserts a kernel module: run as root"
-  uname -v | grep -q PREEMPT_RT || refuse "the running kernel ($krel, $(uname -v)) is not PREEMPT_RT"
   if [ -z "$ko" ]; then
     for k in "$ROOT/build/$krel/module/hapticctrl.ko" /lib/modules/"$krel"/updates/dkms/hapticctrl.ko*; do
       [ -f "$k" ] && { ko=$k; break; }
@@ -74,6 +73,7 @@ if [ "$host" = 1 ]; then
   command -v modinfo >/dev/null || refuse "modinfo (kmod) is missing"
   vermagic=$(modinfo -F vermagic "$ko" 2>/dev/null)
   [ "${vermagic%% *}" = "$krel" ] || refuse "$ko was built for '${vermagic%% *}', the running kernel is '$krel'"
+  uname -v | grep -q PREEMPT_RT || refuse "the running kernel ($krel, $(uname -v)) is not PREEMPT_RT"
   ! grep -q '^hapticctrl ' /proc/modules || refuse "hapticctrl is already loaded (hapticctrl.sh stop first)"
 fi
 
@@ -96,6 +96,7 @@ fi
 
 [ "$host" = 1 ] || [ -f "$ROOT/build/base/module/hapticctrl.ko" ] || make -C "$ROOT"
 hapctl="$ROOT/userspace/target/release/hapctl"
+if [ ! -x "$hapctl" ] && [ "$host" = 1 ] && command -v hapctl >/dev/null; then hapctl=$(command -v hapctl); fi # hapticctrl-tools
 [ -x "$hapctl" ] || (cd "$ROOT/userspace" && cargo build --release --quiet -p hapctl)
 # Guest time for 2 N cycles plus boot; icount runs well below real time
 # under load: allow generously.

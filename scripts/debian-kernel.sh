@@ -70,6 +70,10 @@ if [ "$cmd" = host ]; then
   exit 0
 fi
 
+IMG_DIR=$DEB_CACHE/image-$KREL-${DEB_KVERSION//[^A-Za-z0-9.+-]/_}
+# An unpacked image needs no lock (QEMU runs ask for it while the chroot may be busy).
+if [ "$cmd" = image ] && [ -f "$IMG_DIR/.hap-unpacked" ]; then echo "$IMG_DIR"; exit 0; fi
+
 [ "$(id -u)" = 0 ] || die "the chroot needs root (debootstrap, chroot, mount)"
 mkdir -p "$DEB_CACHE"
 # One user of the chroot at a time.
@@ -176,7 +180,7 @@ build() {
 # packages: QEMU boots boot/vmlinuz-*, the initramfs takes virtio-net from
 # lib/modules/.
 image() {
-  local dir=$DEB_CACHE/image-$KREL-${DEB_KVERSION//[^A-Za-z0-9.+-]/_}
+  local dir=$IMG_DIR
   if [ ! -f "$dir/.hap-unpacked" ]; then
     make_base
     local t0; t0=$(date +%s)

@@ -92,6 +92,14 @@ else
   nok "no build/stock/module/hapticctrl.ko (make STOCK=1) for the signature test"
 fi
 
+# The host bench never runs on a kernel the module was not built for (this
+# machine's), nor in CI; it refuses before installing or loading anything.
+out=$(env -u CI bash "$ROOT/scripts/bench-rt.sh" --host --ko "$ROOT/build/stock/module/hapticctrl.ko" --cycles 10 2>&1); rc=$?
+[ "$rc" = 3 ] && echo "$out" | grep -q "built for '$krel', the running kernel is '$(uname -r)'" && ! grep -q '^hapticctrl ' /proc/modules &&
+  ok "bench-rt.sh --host refuses a module built for another kernel" || nok "bench-rt.sh --host (exit $rc): $out"
+out=$(CI=true bash "$ROOT/scripts/bench-rt.sh" --host --cycles 10 2>&1); rc=$?
+[ "$rc" = 3 ] && echo "$out" | grep -q 'CI=true' && ok "bench-rt.sh --host refuses under CI=true" || nok "bench-rt.sh --host under CI (exit $rc): $out"
+
 # Purge: the module goes, the chroot is as before.
 in_chroot apt-get purge -y -q hapticctrl-dkms hapticctrl-tools >"$work/apt-purge.log" 2>&1 && ok "apt purges both packages" || nok "apt purge: $(tail -5 "$work/apt-purge.log")"
 left=$(cd "$C" && ls lib/modules/"$krel"/updates/dkms/hapticctrl.ko* 2>/dev/null)
