@@ -48,6 +48,7 @@ while [ $# -gt 0 ]; do
   shift
 done
 case "$flavour" in rt-amd64|amd64) ;; *) die "--flavour is rt-amd64 or amd64" ;; esac
+cmd_args=("$@")
 KREL=$DEB_ABI-$flavour
 DEB_CACHE=$HAP_CACHE/debian
 C=$DEB_CACHE/trixie
@@ -74,7 +75,11 @@ IMG_DIR=$DEB_CACHE/image-$KREL-${DEB_KVERSION//[^A-Za-z0-9.+-]/_}
 # An unpacked image needs no lock (QEMU runs ask for it while the chroot may be busy).
 if [ "$cmd" = image ] && [ -f "$IMG_DIR/.hap-unpacked" ]; then echo "$IMG_DIR"; exit 0; fi
 
-[ "$(id -u)" = 0 ] || die "the chroot needs root (debootstrap, chroot, mount)"
+if [ "$(id -u)" != 0 ]; then
+  # debootstrap, chroot and mount need root: through sudo, same cache.
+  command -v sudo >/dev/null || die "the chroot needs root (debootstrap, chroot, mount)"
+  exec sudo HAP_CACHE="$HAP_CACHE" bash "$0" --flavour "$flavour" "$cmd" ${cmd_args[@]+"${cmd_args[@]}"}
+fi
 mkdir -p "$DEB_CACHE"
 # One user of the chroot at a time.
 exec 9>"$DEB_CACHE/lock"
