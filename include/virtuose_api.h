@@ -1,6 +1,8 @@
 /*
  * virtuose_api.h - C interface of the hapticctrl client library
- * (Rust crate userspace/virtuose_api), modelled on Haption's VirtuoseAPI.
+ * (Rust crate userspace/virtuose_api): Haption's VirtuoseAPI (VirtuoseAPI.h,
+ * included here) plus hapticctrl's extensions and the names of its first
+ * header.
  *
  * Link with the static library (userspace/target/<profile>/libvirtuose_api.a,
  * plus -lpthread -ldl -lm) or the shared one (libvirtuose_api.so).
@@ -8,7 +10,7 @@
  * Conventions:
  *  - every function returns 0 on success and -1 on error (virtOpen: NULL);
  *    the error is then given by virtGetErrorCode() / virtGetErrorMessage()
- *    (kept per calling thread);
+ *    (kept per calling thread, VIRT_E_* codes of VirtuoseAPI.h);
  *  - position float[7] = x, y, z (m), qx, qy, qz, qw (unit quaternion,
  *    scalar last); speed float[6] = vx, vy, vz (m/s), wx, wy, wz (rad/s);
  *    force float[6] = fx, fy, fz (N), tx, ty, tz (N.m);
@@ -18,71 +20,28 @@
 #ifndef VIRTUOSE_API_H
 #define VIRTUOSE_API_H
 
+#include "VirtuoseAPI.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-typedef struct VirtContextS *VirtContext;
-
-/* Error codes (virtGetErrorCode). */
-#define VIRT_E_NO_ERROR          0
-#define VIRT_E_INVALID_ADDRESS   1
-#define VIRT_E_SOCKET            2
-#define VIRT_E_TIMEOUT           3
-#define VIRT_E_REFUSED           4
-#define VIRT_E_INVALID_ARGUMENT  5
-#define VIRT_E_NO_DATA           6
-#define VIRT_E_CLOSED            7
-#define VIRT_E_NULL_POINTER      8
-
-/* virtSetCommandType */
-#define COMMAND_TYPE_NONE       0
-#define COMMAND_TYPE_IMPEDANCE  1
-#define COMMAND_TYPE_VIRTMECH   2
-
-/* virtSetIndexingMode */
-#define INDEXING_ALL                             0
-#define INDEXING_TRANS                           1
-#define INDEXING_NONE                            2
-#define INDEXING_ALL_FORCE_FEEDBACK_INHIBITION   3
-#define INDEXING_TRANS_FORCE_FEEDBACK_INHIBITION 4
-
-/* Open a session with the controller: "host#port" (port defaults to 5000). */
-VirtContext virtOpen(const char *name);
-/* Close the session and free the context. */
-int virtClose(VirtContext vc);
-
-int virtSetTimeStep(VirtContext vc, float step);
-int virtSetIndexingMode(VirtContext vc, unsigned short indexing_mode);
-int virtSetForceFactor(VirtContext vc, float force_factor);
-int virtSetSpeedFactor(VirtContext vc, float speed_factor);
-int virtSetBaseFrame(VirtContext vc, const float *pos /* [7] */);
-int virtSetObservationFrame(VirtContext vc, const float *pos /* [7] */);
-int virtSetCommandType(VirtContext vc, unsigned short type);
-
-int virtAttachVO(VirtContext vc, float mass, const float *mxmymz /* [3] */);
-int virtDetachVO(VirtContext vc);
-
-int virtSetPosition(VirtContext vc, const float *pos /* [7] */);
-int virtSetSpeed(VirtContext vc, const float *speed /* [6] */);
-
-int virtGetPosition(VirtContext vc, float *pos /* [7] */);
-int virtGetSpeed(VirtContext vc, float *speed /* [6] */);
-int virtGetForce(VirtContext vc, float *force /* [6] */);
-
-int virtGetPowerOn(VirtContext vc, int *power);
-int virtSetPowerOn(VirtContext vc, int power);
-int virtGetDeadMan(VirtContext vc, int *dead_man);
-int virtGetEmergencyStop(VirtContext vc, int *emergency_stop);
-int virtGetAlarm(VirtContext vc, unsigned int *alarm);
+/* Names of hapticctrl's first header, as aliases of VirtuoseAPI's codes. */
+#define VIRT_E_INVALID_ADDRESS   VIRT_E_SYNTAX_ERROR
+#define VIRT_E_SOCKET            VIRT_E_COMMUNICATION_FAILURE
+#define VIRT_E_TIMEOUT           VIRT_E_TIME_OUT
+#define VIRT_E_REFUSED           VIRT_E_WRONG_MODE
+#define VIRT_E_INVALID_ARGUMENT  VIRT_E_INCORRECT_VALUE
+#define VIRT_E_NO_DATA           VIRT_E_VARIABLE_NOT_AVAILABLE
+#define VIRT_E_CLOSED            VIRT_E_INVALID_CONTEXT
+#define VIRT_E_NULL_POINTER      VIRT_E_INVALID_CONTEXT
 
 /* hapticctrl extension: answers/s, loss ratio (0..1), last round trip (ms). */
 int virtGetLinkStats(VirtContext vc, float *rate_hz, float *loss_ratio, float *rtt_ms);
 
-/* Last error of the calling thread (vc may be NULL). */
-int virtGetErrorCode(VirtContext vc);
-/* Message for an error code; valid until the thread's next virt* call. */
-const char *virtGetErrorMessage(int code);
+/* hapticctrl extension: periods of the callback loop that overran since the
+ * loop started (the VIRT_ALARM_CALLBACK_OVERRUN events). */
+int virtGetCallbackOverruns(VirtContext vc, unsigned int *overruns);
 
 #ifdef __cplusplus
 }

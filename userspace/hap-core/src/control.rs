@@ -9,48 +9,86 @@
 //! world → arm base). Forces go back scaled by `force_factor` (client force =
 //! `force_factor` × arm force; torques by `force_factor·speed_factor`).
 //!
-//! Gains are chosen inside the passivity bound `b > K·T/2 + |B|`, applied per
-//! joint with the largest lever arm (see `Documentation/control.md`):
-//! `b_i > (K_t·r_i² + K_r)·T/2 + B_t·r_i² + B_r`.
+//! Gains are scheduled with the period so that the joint-space passivity
+//! condition `D − (T'/2)(K_t J_vᵀJ_v + K_r J_ωᵀJ_ω) − (B_t J_vᵀJ_v + B_r J_ωᵀJ_ω) ≻ 0`
+//! holds over the workspace at the effective period `T' = 2T` (main and
+//! degraded path alike). The coupling force reaches the motors through an
+//! envelope (soft start, link fade, ramps), a torque-vector scaling that
+//! keeps its direction, and a spring that slips rather than store a force
+//! it could not apply (see `Documentation/control.md`).
 
 use super::arm::{self, Kinematics};
 use super::config::{CommandType, IndexingMode, ServoConfig};
 use super::fixed::{Fx, Joints, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
-use super::servo::ServoMode;
 use super::state_model::{LogicalState, PhysicalState};
 use super::vp::{alarm, status, VpReceived};
 
 /// Nominal translational stiffness, N/m (capped by the bound).
 pub const K_LIN_NOMINAL: Fx = Fx::from_int(1500);
 /// Translational coupling damping, N·s/m.
-pub const B_LIN: Fx = Fx::from_ratio(2, 10);
+pub const B_LIN: Fx = Fx::from_ratio(5, 100);
 /// Nominal rotational stiffness, N·m/rad (capped by the bound).
 pub const K_ROT_NOMINAL: Fx = Fx::from_int(10);
 /// Rotational coupling damping, N·m·s/rad.
-pub const B_ROT: Fx = Fx::from_ratio(5, 1000);
-/// Fraction of the bound used by the nominal gains.
+pub const B_ROT: Fx = Fx::from_ratio(5, 10_000);
+/// Fraction of the joint-space bound used by the nominal gains.
 pub const BOUND_MARGIN: Fx = Fx::from_ratio(8, 10);
+/// Fraction used by [`Gains::at_bound`] (the stiffest gains offered).
+pub const BOUND_MARGIN_MAX: Fx = Fx::from_ratio(95, 100);
+/// Share of the stiffness budget given to the rotational spring.
+pub const ROT_SHARE: Fx = Fx::from_ratio(1, 4);
 /// `virtSaturateTorque` thresholds: force N, torque N·m.
 pub const MAX_FORCE: Fx = Fx::from_int(20);
 pub const MAX_TORQUE: Fx = Fx::from_ratio(6, 10);
-/// Handle speed limits, m/s and rad/s, and the braking damping beyond them.
-pub const V_MAX: Fx = Fx::from_ratio(15, 10);
-pub const W_MAX: Fx = Fx::from_int(10);
-pub const B_VLIM: Fx = Fx::from_int(10);
-pub const B_WLIM: Fx = Fx::from_ratio(2, 100);
+/// Joint speeds beyond which the velocity brake acts, rad/s.
+pub const BRAKE_START: Joints = [
+    Fx::ONE,
+    Fx::ONE,
+    Fx::from_ratio(15, 10),
+    Fx::from_int(8),
+    Fx::from_int(8),
+    Fx::from_int(8),
+];
+/// Brake gain as a fraction of `I_rotor,i / T` (`B_i·T/I_i ≤ ½`: the sampled
+/// brake never reverses a joint within one period).
+pub const BRAKE_GAIN_FRACTION: Fx = Fx::HALF;
+/// Observer energy below which the passivity controller acts, J (−2^-20 J:
+/// fixed-point rounding of the observer stays above it).
+pub const PO_TOLERANCE: Fx = Fx(-(1 << 12));
 /// Passivity controller damping caps, N·s/m and N·m·s/rad.
 pub const PC_ALPHA_MAX: Fx = Fx::from_int(5);
 pub const PC_ALPHA_ROT_MAX: Fx = Fx::from_ratio(2, 100);
-/// Joint damping injected in degraded mode, N·m·s/rad (each below the
-/// arm's own damping, so the discrete damper stays passive).
-pub const DEGRADED_DAMPING: Joints = [
-    Fx::from_ratio(3, 10),
-    Fx::from_ratio(3, 10),
-    Fx::from_ratio(2, 10),
-    Fx::from_ratio(5, 1000),
-    Fx::from_ratio(5, 1000),
-    Fx::from_ratio(5, 1000),
-];
+/// Coupling force ramp: the envelope goes from 0 to 1 (and 1 to 0) in
+/// `RAMP_US` µs at the most (slew ≤ `MAX_FORCE`/`RAMP_US` = 0.4 N/ms). It is
+/// the link watchdog's fade slope, so the envelope follows the fade exactly.
+pub const RAMP_US: u64 = 50_000;
+
+/// λ_max bound of `J_v D⁻¹ J_vᵀ` over the workspace, 1/(N·s/m):
+/// `Σ r_i²/b_i` (trace bound, `r_i` = `arm::LEVER_MAX`).
+pub fn lin_mobility_bound() -> Fx {
+    let mut a = Fx::ZERO;
+    for (b, r) in arm::DAMPING.iter().zip(arm::LEVER_MAX.iter()) {
+        a = a.add_sat(r.mul_sat(*r).div_sat(*b));
+    }
+    // Round up by a few ulps so the bound stays an upper bound.
+    a.add_sat(Fx(64))
+}
+
+/// λ_max bound of `J_ω D⁻¹ J_ωᵀ` over the workspace, 1/(N·m·s/rad):
+/// joints 2 and 3 share one axis, the wrist pitch axis is orthogonal to the
+/// two wrist roll axes, so `λ_max ≤ 1/b1 + (1/b2 + 1/b3) + max(1/b5, 1/b4 + 1/b6)`.
+pub fn rot_mobility_bound() -> Fx {
+    let inv = |i: usize| match arm::DAMPING.get(i) {
+        Some(b) if b.0 > 0 => Fx::ONE.div_sat(*b),
+        _ => Fx::MAX,
+    };
+    let wrist = inv(4).max(inv(3).add_sat(inv(5)));
+    inv(0)
+        .add_sat(inv(1))
+        .add_sat(inv(2))
+        .add_sat(wrist)
+        .add_sat(Fx(64))
+}
 
 /// Coupling gains for one servo period.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -73,76 +111,96 @@ impl Gains {
         b_rot: Fx::ZERO,
     };
 
-    /// Largest rotational stiffness the bound allows with `k_lin = 0`.
-    pub fn max_rot_stiffness(period: Fx) -> Fx {
-        let two_over_t = Fx::TWO.div_sat(period);
-        let mut best = Fx::MAX;
-        for (b, r) in arm::DAMPING.iter().zip(arm::LEVER_MAX.iter()) {
-            let slack = b.sub_sat(B_ROT).sub_sat(B_LIN.mul_sat(r.mul_sat(*r)));
-            best = best.min(slack.mul_sat(two_over_t));
+    /// Gains using `margin` of the joint-space bound at the effective period
+    /// `2·period` (a missed deadline holds one command for up to 2T, so the
+    /// same gains serve the main and the degraded path):
+    /// `(T·K_t + B_t)·a + (T·K_r + B_r)·c ≤ margin`, `a`, `c` the mobility
+    /// bounds; `K_r` takes `ROT_SHARE` of the stiffness budget.
+    pub fn scheduled(period: Fx, margin: Fx) -> Gains {
+        let a = lin_mobility_bound();
+        let c = rot_mobility_bound();
+        let slack = margin
+            .sub_sat(B_LIN.mul_sat(a))
+            .sub_sat(B_ROT.mul_sat(c))
+            .max(Fx::ZERO);
+        let t = period.max(Fx(1));
+        let k_rot = K_ROT_NOMINAL
+            .min(ROT_SHARE.mul_sat(slack).div_sat(t.mul_sat(c)))
+            .max(Fx::ZERO);
+        let left = slack.sub_sat(t.mul_sat(k_rot).mul_sat(c)).max(Fx::ZERO);
+        let k_lin = K_LIN_NOMINAL.min(left.div_sat(t.mul_sat(a))).max(Fx::ZERO);
+        Gains {
+            k_lin,
+            b_lin: B_LIN,
+            k_rot,
+            b_rot: B_ROT,
         }
-        best.max(Fx::ZERO)
     }
 
-    /// Largest translational stiffness the bound allows given `k_rot`:
-    /// `min_i [2(b_i − B_r − B_t r_i²)/T − K_r] / r_i²`.
-    pub fn max_lin_stiffness(period: Fx, k_rot: Fx) -> Fx {
-        let two_over_t = Fx::TWO.div_sat(period);
-        let mut best = Fx::MAX;
-        for (b, r) in arm::DAMPING.iter().zip(arm::LEVER_MAX.iter()) {
-            let r2 = r.mul_sat(*r);
-            if r2.0 <= 0 {
-                continue;
-            }
-            let slack = b.sub_sat(B_ROT).sub_sat(B_LIN.mul_sat(r2));
-            let k = slack.mul_sat(two_over_t).sub_sat(k_rot).div_sat(r2);
-            best = best.min(k);
-        }
-        best.max(Fx::ZERO)
-    }
-
-    /// Nominal gains for `period` (s): `K_r = min(10, ½·K_r,max)`,
-    /// `K_t = min(1500, 0.8·K_t,max)`.
+    /// Nominal gains for `period` (s): [`Gains::scheduled`] at `BOUND_MARGIN`.
     pub fn for_period(period: Fx) -> Gains {
-        let k_rot = K_ROT_NOMINAL.min(Gains::max_rot_stiffness(period).mul_sat(Fx::HALF));
-        let k_lin =
-            K_LIN_NOMINAL.min(Gains::max_lin_stiffness(period, k_rot).mul_sat(BOUND_MARGIN));
-        Gains {
-            k_lin,
-            b_lin: B_LIN,
-            k_rot,
-            b_rot: B_ROT,
-        }
+        Gains::scheduled(period, BOUND_MARGIN)
     }
 
-    /// The stiffest gains the bound allows (margin 1): for wall tests.
+    /// The stiffest gains offered (margin `BOUND_MARGIN_MAX`); every gain
+    /// the controller uses is clamped to these.
     pub fn at_bound(period: Fx) -> Gains {
-        let k_rot = K_ROT_NOMINAL.min(Gains::max_rot_stiffness(period).mul_sat(Fx::HALF));
-        let k_lin = Gains::max_lin_stiffness(period, k_rot);
+        Gains::scheduled(period, BOUND_MARGIN_MAX)
+    }
+
+    /// Each gain in `[0, bound]`.
+    pub fn clamped(&self, bound: &Gains) -> Gains {
+        let c = |v: Fx, hi: Fx| v.max(Fx::ZERO).min(hi);
         Gains {
-            k_lin,
-            b_lin: B_LIN,
-            k_rot,
-            b_rot: B_ROT,
+            k_lin: c(self.k_lin, bound.k_lin),
+            b_lin: c(self.b_lin, bound.b_lin),
+            k_rot: c(self.k_rot, bound.k_rot),
+            b_rot: c(self.b_rot, bound.b_rot),
         }
     }
 }
 
-/// The controller's memory (filters, observer, indexing).
+/// Velocity brake gains for `period`: `B_i = ½·I_rotor,i/T`, N·m·s/rad.
+pub fn brake_gains(period: Fx) -> Joints {
+    let t = period.max(Fx(1));
+    arm::ROTOR_INERTIA.map(|i| BRAKE_GAIN_FRACTION.mul_sat(i).div_sat(t))
+}
+
+/// The controller's memory (filters, observer, indexing, envelope).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Controller {
+    /// Requested gains; every cycle uses them clamped to `bound`.
     pub gains: Gains,
     /// Gravity compensation on (default); tests switch it off.
     pub gravity_compensation: bool,
     /// Passivity controller on (default).
     pub passivity_control: bool,
     period: Fx,
-    /// Passivity observer: energy that entered the coupling, J (≥ 0 when passive).
+    bound: Gains,
+    brake: Joints,
+    /// Envelope step per cycle: `T / RAMP_US`.
+    ramp_step: Fx,
+    /// Link watchdog gain for this cycle, [0, 1] (set by the cycle).
+    link_gain: Fx,
+    /// Coupling force envelope, [0, 1]: the force that reaches the motors is
+    /// at most `envelope · MAX_FORCE`.
+    envelope: Fx,
+    /// Passivity observer: energy that entered the coupling plus the arm's
+    /// proven viscous dissipation, J (≥ 0 when passive).
     po_energy: Fx,
     coupled: bool,
-    prev_handle: Vec3,
+    /// Spring slip (translation m, rotation rad): see `cartesian_control`.
+    slip: Vec3,
+    slip_rot: Vec3,
+    /// The coupling's joint torques the motors got last cycle.
+    prev_tau_c: Joints,
+    /// The gains used last cycle.
+    prev_k: Gains,
     prev_target: Pose,
     prev_wrench: Wrench,
+    prev_q: Joints,
+    /// The last target (raw arm frame) the envelope ramps down on.
+    held_target: Pose,
     /// Indexing offset: indexed handle = (offset_pos + p, offset_rot ⊗ q).
     offset_pos: Vec3,
     offset_rot: Quat,
@@ -153,9 +211,14 @@ pub struct Controller {
 /// What `cartesian_control` produces.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ControlOutput {
-    /// Joint torques to command (saturated to the motor limits), N·m.
+    /// Joint torques to command (within the motor limits), N·m:
+    /// `fixed_torques + Jᵀ·handle_wrench`.
     pub joint_torques: Joints,
-    /// Coupling wrench applied to the handle (after saturation and PC), base frame.
+    /// Gravity compensation plus velocity brake, N·m (the part of
+    /// `joint_torques` that is not the coupling).
+    pub fixed_torques: Joints,
+    /// Coupling wrench applied to the handle through the motors (after the
+    /// envelope, saturation, PC and the torque-vector scaling), base frame.
     pub handle_wrench: Wrench,
     /// Wrench for the client's virtual object, client frame and units.
     pub coupling_wrench: Wrench,
@@ -168,6 +231,15 @@ pub struct ControlOutput {
     pub alarms: u32,
     /// Passivity observer energy after this cycle, J.
     pub po_energy: Fx,
+    /// Coupling envelope this cycle, [0, 1].
+    pub envelope: Fx,
+    /// Scale applied to the coupling's joint torques to fit the motor
+    /// limits (1: none), [0, 1].
+    pub torque_scale: Fx,
+    /// The spring–damper wrench after the envelope and the saturation,
+    /// before the passivity controller and the torque scaling: the force
+    /// the target port sees right after the client's step.
+    pub spring_wrench: Wrench,
 }
 
 impl Controller {
@@ -177,11 +249,21 @@ impl Controller {
             gravity_compensation: true,
             passivity_control: true,
             period: Fx::ZERO,
+            bound: Gains::ZERO,
+            brake: JOINTS_ZERO,
+            ramp_step: Fx::ONE,
+            link_gain: Fx::ONE,
+            envelope: Fx::ZERO,
             po_energy: Fx::ZERO,
             coupled: false,
-            prev_handle: Vec3::ZERO,
+            slip: Vec3::ZERO,
+            slip_rot: Vec3::ZERO,
+            prev_tau_c: JOINTS_ZERO,
+            prev_k: Gains::ZERO,
             prev_target: Pose::IDENTITY,
             prev_wrench: Wrench::ZERO,
+            prev_q: JOINTS_ZERO,
+            held_target: Pose::IDENTITY,
             offset_pos: Vec3::ZERO,
             offset_rot: Quat::IDENTITY,
             indexing: false,
@@ -198,6 +280,13 @@ impl Controller {
         self.passivity_control = pc;
         self.period = period;
         self.gains = Gains::for_period(period);
+        self.bound = Gains::at_bound(period);
+        self.brake = brake_gains(period);
+        // T / RAMP: Q32.32 of (period_s · 10^6 / RAMP_US).
+        let step = period
+            .mul_int(1_000_000)
+            .div_sat(Fx::from_int(RAMP_US as i32));
+        self.ramp_step = step.max(Fx(1)).min(Fx::ONE);
     }
 
     pub fn po_energy(&self) -> Fx {
@@ -208,11 +297,61 @@ impl Controller {
         self.coupled
     }
 
+    /// The target the coupling pulls toward (raw arm frame; held while the
+    /// envelope ramps down).
+    pub fn target(&self) -> Pose {
+        self.held_target
+    }
+
+    /// The spring's slip (translation m, rotation rad).
+    pub fn slip(&self) -> (Vec3, Vec3) {
+        (self.slip, self.slip_rot)
+    }
+
+    /// The coupling envelope, [0, 1].
+    pub fn envelope(&self) -> Fx {
+        self.envelope
+    }
+
+    /// Envelope change per cycle (`T / RAMP_US`).
+    pub fn ramp_step(&self) -> Fx {
+        self.ramp_step
+    }
+
+    /// The gains in use: `gains` clamped to the bound.
+    pub fn effective_gains(&self) -> Gains {
+        self.gains.clamped(&self.bound)
+    }
+
+    /// The link watchdog's gain for the coming cycle (clamped to [0, 1]).
+    pub fn set_link_gain(&mut self, g: Fx) {
+        self.link_gain = g.max(Fx::ZERO).min(Fx::ONE);
+    }
+
     /// Reset the indexing offset (e.g. new session).
     pub fn reset_indexing(&mut self) {
         self.offset_pos = Vec3::ZERO;
         self.offset_rot = Quat::IDENTITY;
         self.indexing = false;
+    }
+}
+
+impl Default for ControlOutput {
+    fn default() -> Self {
+        ControlOutput {
+            joint_torques: JOINTS_ZERO,
+            fixed_torques: JOINTS_ZERO,
+            handle_wrench: Wrench::ZERO,
+            coupling_wrench: Wrench::ZERO,
+            handle_pose_client: Pose::IDENTITY,
+            handle_twist_client: Twist::ZERO,
+            status: 0,
+            alarms: 0,
+            po_energy: Fx::ZERO,
+            envelope: Fx::ZERO,
+            torque_scale: Fx::ONE,
+            spring_wrench: Wrench::ZERO,
+        }
     }
 }
 
@@ -237,14 +376,36 @@ fn spring_energy(g: &Gains, d: Vec3, e: Vec3) -> Fx {
     lin.add_sat(rot)
 }
 
-/// Braking force beyond a speed limit: `−B·(|v| − v_max)·v̂`.
-fn speed_brake(v: Vec3, v_max: Fx, b: Fx) -> (Vec3, bool) {
-    let n = v.norm();
-    if n <= v_max || n.0 <= 0 {
-        return (Vec3::ZERO, false);
+/// Per-component bounds of the coupling errors: position m, speed m/s,
+/// angular speed rad/s (far beyond the arm's reach and speeds).
+const D_CLAMP: Fx = Fx::from_int(4);
+const V_CLAMP: Fx = Fx::from_int(100);
+const W_CLAMP: Fx = Fx::from_int(1000);
+
+/// `num / den` in [0, 1] (1 when `den` is 0).
+fn ratio_le1(num: Fx, den: Fx) -> Fx {
+    if den.0 <= 0 {
+        return Fx::ONE;
     }
-    let k = b.mul_sat(n.sub_sat(v_max)).div_sat(n);
-    (v.scale(k).neg(), true)
+    num.div_sat(den).max(Fx::ZERO).min(Fx::ONE)
+}
+
+fn clamp_vec(v: Vec3, lim: Fx) -> Vec3 {
+    Vec3::new(v.x.clamp_abs(lim), v.y.clamp_abs(lim), v.z.clamp_abs(lim))
+}
+
+/// Largest `s` in [0, 1] with `|base + s·add| ≤ lim` (given `|base| ≤ lim`).
+fn fit_scale(base: Fx, add: Fx, lim: Fx) -> Fx {
+    let sum = base.add_sat(add);
+    if sum.abs() <= lim || add.0 == 0 {
+        return Fx::ONE;
+    }
+    let room = if add.0 > 0 {
+        lim.sub_sat(base)
+    } else {
+        lim.add_sat(base)
+    };
+    room.max(Fx::ZERO).div_sat(add.abs()).min(Fx::ONE)
 }
 
 /// `cartesian_control`.
@@ -317,73 +478,125 @@ pub fn cartesian_control(
     };
 
     // ---- Coupling.
-    let want_coupling = ls.motors_enabled
-        && ls.dead_man
+    // The motors can push (power, gate, dead-man); the client asks for a
+    // coupling (valid VPr, command type, no force-feedback inhibition).
+    let can_push = ls.motors_enabled && ls.dead_man;
+    let want_coupling = can_push
         && vpr.valid
+        && !ff_inhibited
         && match config.command_type {
             CommandType::None => false,
             CommandType::Impedance => true,
             CommandType::VirtMech => config.attached_object.is_some(),
         };
-    let mut g = ctrl.gains;
-    if ls.mode == ServoMode::Degraded {
-        // The auxiliary path keeps the coupling (spec §3.5: same code) but a
-        // deadline was just missed, so the effective period may be twice as
-        // long: halving the stiffnesses keeps the b > K·T/2 margin.
-        g.k_lin = Fx(g.k_lin.0 / 2);
-        g.k_rot = Fx(g.k_rot.0 / 2);
-    }
+    // One gain set for the main and the degraded path (scheduled at 2T):
+    // switching path changes nothing in the coupling. Whatever was asked,
+    // the gains stay inside the bound.
+    let mut g = ctrl.gains.clamped(&ctrl.bound);
     if config.command_type == CommandType::VirtMech {
         // Mass-aware cap so the client's explicit integration stays stable:
-        // K ≤ m / ts².
+        // K ≤ m / ts² (only ever lowers K).
         if let Some(obj) = config.attached_object {
             let ts = config.time_step;
             if ts.0 > 0 {
-                let cap = obj.mass.div_sat(ts.mul_sat(ts));
+                let cap = obj.mass.max(Fx::ZERO).div_sat(ts.mul_sat(ts));
                 g.k_lin = g.k_lin.min(cap);
             }
         }
     }
 
+    // Envelope: rises by at most `ramp_step` per cycle and never above the
+    // link gain while the client is wanted; falls by `ramp_step` per cycle
+    // (on the held target) when it is not; 0 at once when the motors cannot
+    // push or nobody holds the handle.
+    let env_prev = ctrl.envelope;
+    let env = if !can_push {
+        Fx::ZERO
+    } else if want_coupling {
+        env_prev.add_sat(ctrl.ramp_step).min(ctrl.link_gain)
+    } else if ctrl.coupled {
+        env_prev
+            .sub_sat(ctrl.ramp_step)
+            .max(Fx::ZERO)
+            .min(ctrl.link_gain)
+    } else {
+        Fx::ZERO
+    };
+    ctrl.envelope = env;
+
     let mut handle_wrench = Wrench::ZERO;
-    let mut coupling_wrench = Wrench::ZERO;
+    let mut target = ctrl.held_target;
+    // (error, its slipped part) of an active spring; saturation factors.
+    let mut spring: Option<(Vec3, Vec3, Vec3, Vec3)> = None;
+    let mut sat_f = Fx::ONE;
+    let mut sat_t = Fx::ONE;
+    let mut spring_wrench = Wrench::ZERO;
+    let mut t_v = Vec3::ZERO;
+    let mut t_w = Vec3::ZERO;
+    let active = env.0 > 0 && (want_coupling || ctrl.coupled);
     if want_coupling {
         // Target in the indexed arm frame, then in the raw arm frame.
         let t_idx = base_inv.compose(&vpr.pose);
         let t_pos = t_idx.position.scale(inv_sf).sub(ctrl.offset_pos);
         let t_rot = ctrl.offset_rot.conjugate().mul(&t_idx.orientation);
         let back = ctrl.offset_rot.conjugate().mul(&base_inv.orientation);
-        let t_v = back.rotate(vpr.twist.linear).scale(inv_sf);
-        let t_w = back.rotate(vpr.twist.angular);
-        let target = Pose {
+        t_v = back.rotate(vpr.twist.linear).scale(inv_sf);
+        t_w = back.rotate(vpr.twist.angular);
+        target = Pose {
             position: t_pos,
             orientation: t_rot,
         };
-
-        let d = t_pos.sub(p_h);
-        let e = t_rot.error_vector(&q_h);
+        ctrl.held_target = target;
+    }
+    if active {
+        let t_pos = target.position;
+        let t_rot = target.orientation;
+        // Errors bounded before the products (a hostile target far away
+        // saturates the force anyway; this keeps every product in range).
+        let d = clamp_vec(t_pos.sub(p_h), D_CLAMP);
+        // |e| ≤ 2 for unit quaternions; a client's non-unit frame cannot
+        // make it larger.
+        let e = clamp_vec(t_rot.error_vector(&q_h), Fx::TWO);
         if !ctrl.coupled {
-            // Start of coupling: the observer starts with the spring's energy.
-            ctrl.po_energy = spring_energy(&g, d, e);
-            ctrl.prev_target = target;
-            ctrl.prev_handle = p_h;
-            ctrl.prev_wrench = Wrench::ZERO;
-        } else {
-            // Passivity observer: energy that entered the coupling during the
-            // last period through both ports, with the wrench that was applied.
-            let dp_t = t_pos.sub(ctrl.prev_target.position);
-            let dth_t = t_rot.error_vector(&ctrl.prev_target.orientation);
-            let dp_h = p_h.sub(ctrl.prev_handle);
-            let dth_h = w_h.scale(ctrl.period);
-            let de = ctrl
-                .prev_wrench
-                .force
-                .dot(dp_t.sub(dp_h))
-                .add_sat(ctrl.prev_wrench.torque.dot(dth_t.sub(dth_h)));
-            ctrl.po_energy = ctrl.po_energy.add_sat(de);
+            ctrl.slip = Vec3::ZERO;
+            ctrl.slip_rot = Vec3::ZERO;
         }
-        let f = d.scale(g.k_lin).add(t_v.sub(v_h).scale(g.b_lin));
-        let tq = e.scale(g.k_rot).add(t_w.sub(w_h).scale(g.b_rot));
+        // The spring acts on the error less its slip (see below).
+        let mut d_eff = d.sub(ctrl.slip);
+        let mut e_eff = e.sub(ctrl.slip_rot);
+        if ctrl.coupled && (g.k_lin > ctrl.prev_k.k_lin || g.k_rot > ctrl.prev_k.k_rot) {
+            // A stiffer spring (command type, attached object, time step
+            // changed) keeps the force it had: the anchor slips to K₀/K of
+            // the stretch, so no energy enters with the new gains.
+            let kl = ratio_le1(ctrl.prev_k.k_lin, g.k_lin);
+            let kr = ratio_le1(ctrl.prev_k.k_rot, g.k_rot);
+            d_eff = d_eff.scale(kl);
+            e_eff = e_eff.scale(kr);
+            ctrl.slip = d.sub(d_eff);
+            ctrl.slip_rot = e.sub(e_eff);
+        }
+        ctrl.prev_k = g;
+        if ctrl.coupled && env > env_prev {
+            // A rising envelope stores ½(g − g₀)·K|d|² more in the spring:
+            // paid by the observer when it holds it, else the anchor slips
+            // so that the force stays continuous (g₀/g of the stretch).
+            let v = spring_energy(&g, d_eff, e_eff);
+            let cost = v.mul_sat(env.sub_sat(env_prev));
+            if ctrl.po_energy.sub_sat(cost) >= v.mul_sat(env) {
+                ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
+            } else {
+                let k = ratio_le1(env_prev, env);
+                d_eff = d_eff.scale(k);
+                e_eff = e_eff.scale(k);
+                ctrl.slip = d.sub(d_eff);
+                ctrl.slip_rot = e.sub(e_eff);
+            }
+        }
+        spring = Some((d, e, d_eff, e_eff));
+        let dv = clamp_vec(t_v.sub(v_h), V_CLAMP);
+        let dw = clamp_vec(t_w.sub(w_h), W_CLAMP);
+        let f = d_eff.scale(g.k_lin).add(dv.scale(g.b_lin));
+        let tq = e_eff.scale(g.k_rot).add(dw.scale(g.b_rot));
         let (mut w, sat) = Wrench {
             force: f,
             torque: tq,
@@ -391,9 +604,48 @@ pub fn cartesian_control(
         .saturate(MAX_FORCE, MAX_TORQUE);
         if sat {
             alarms |= alarm::TORQUE_SATURATED;
+            sat_f = ratio_le1(w.force.norm(), f.norm());
+            sat_t = ratio_le1(w.torque.norm(), tq.norm());
+        }
+        w = w.scale(env);
+        spring_wrench = w;
+        if !ctrl.coupled {
+            // Start of coupling: the observer starts with the spring's energy.
+            ctrl.po_energy = spring_energy(&g, d_eff, e_eff);
+            ctrl.prev_wrench = Wrench::ZERO;
+            ctrl.prev_tau_c = JOINTS_ZERO;
+        } else {
+            // Passivity observer: energy that entered the coupling during the
+            // last period through both ports, plus the viscous dissipation
+            // of the arm's joints that the encoders prove (Cauchy–Schwarz:
+            // ∫q̇² dt ≥ Δq²/T). Handle port: the coupling's joint torques
+            // the motors held over the period (ZOH), times the joint
+            // displacement: the exact work at the motors. Target port: the
+            // client's pose is a sampled signal, so the spring's change on
+            // its step is the trapezoid of the wrench before and after it.
+            let dp_t = t_pos.sub(ctrl.prev_target.position);
+            let dth_t = t_rot.error_vector(&ctrl.prev_target.orientation);
+            let pw = ctrl.prev_wrench;
+            let avg_f = pw.force.add(w.force).scale(Fx::HALF);
+            let avg_t = pw.torque.add(w.torque).scale(Fx::HALF);
+            let mut de = avg_f.dot(dp_t).add_sat(avg_t.dot(dth_t));
+            for ((q, q0), t) in
+                ps.q.iter()
+                    .zip(ctrl.prev_q.iter())
+                    .zip(ctrl.prev_tau_c.iter())
+            {
+                de = de.sub_sat(t.mul_sat(q.sub_sat(*q0)));
+            }
+            if ctrl.period.0 > 0 {
+                for ((q, q0), b) in ps.q.iter().zip(ctrl.prev_q.iter()).zip(arm::DAMPING.iter()) {
+                    let dq = q.sub_sat(*q0);
+                    de = de.add_sat(b.mul_sat(dq.mul_sat(dq)).div_sat(ctrl.period));
+                }
+            }
+            ctrl.po_energy = ctrl.po_energy.add_sat(de);
         }
         // Passivity controller: dissipate the energy the coupling created.
-        if ctrl.passivity_control && ctrl.po_energy.0 < 0 {
+        if ctrl.passivity_control && ctrl.po_energy < PO_TOLERANCE {
             alarms |= alarm::PASSIVITY;
             let deficit = ctrl.po_energy.neg_sat();
             let v2 = v_h.norm_sq();
@@ -408,70 +660,143 @@ pub fn cartesian_control(
                 w.torque = w.torque.sub(w_h.scale(a));
             }
         }
-        // The PC force stays inside the same saturation.
-        w = w.saturate(MAX_FORCE, MAX_TORQUE).0;
+        // The PC force stays inside the same saturation, scaled by the
+        // envelope: |f| ≤ env·F_max.
+        w = w
+            .saturate(MAX_FORCE.mul_sat(env), MAX_TORQUE.mul_sat(env))
+            .0;
         ctrl.prev_target = target;
-        ctrl.prev_handle = p_h;
+        ctrl.prev_q = ps.q;
         ctrl.coupled = true;
-        if ff_inhibited {
-            w = Wrench::ZERO;
-        } else {
+        if want_coupling {
             st |= status::COUPLED;
         }
-        ctrl.prev_wrench = w;
         handle_wrench = w;
-        // The object feels the reaction, in client frame and units.
-        let react = w.neg().rotate(&base.orientation);
-        coupling_wrench = Wrench {
-            force: react.force.scale(config.force_factor),
-            torque: react.torque.scale(config.force_factor.mul_sat(sf)),
-        };
     } else {
         ctrl.coupled = false;
+        ctrl.envelope = Fx::ZERO;
         ctrl.prev_wrench = Wrench::ZERO;
     }
 
-    // ---- Velocity limit (all modes).
-    let (fb, over_v) = speed_brake(v_h, V_MAX, B_VLIM);
-    let (tb, over_w) = speed_brake(w_h, W_MAX, B_WLIM);
-    if over_v || over_w {
-        alarms |= alarm::VELOCITY_LIMIT;
-    }
-    let total = Wrench {
-        force: handle_wrench.force.add(fb),
-        torque: handle_wrench.torque.add(tb),
-    };
-
-    // ---- Joint torques: Jᵀ·w + gravity compensation (+ degraded damping).
-    let mut tau = arm::jacobian_transpose_mul(&kin.jacobian, &total);
+    // ---- Fixed torques: gravity compensation, then the joint velocity
+    // brake with the motor torque that is left.
+    let mut fixed = JOINTS_ZERO;
     if ctrl.gravity_compensation {
-        for (t, g) in tau.iter_mut().zip(kin.gravity.iter()) {
-            *t = t.sub_sat(*g);
-        }
-    }
-    if ls.mode == ServoMode::Degraded {
-        for ((t, b), qd) in tau
+        for ((t, gr), lim) in fixed
             .iter_mut()
-            .zip(DEGRADED_DAMPING.iter())
-            .zip(ps.qd.iter())
+            .zip(kin.gravity.iter())
+            .zip(arm::TAU_MAX.iter())
         {
-            *t = t.sub_sat(b.mul_sat(*qd));
+            *t = gr.neg_sat().clamp_abs(*lim);
         }
     }
-    let mut joint_torques = JOINTS_ZERO;
-    for ((o, t), lim) in joint_torques
+    let mut over = [false; 6];
+    for (i, ((t, qd), (start, b))) in fixed
         .iter_mut()
-        .zip(tau.iter())
+        .zip(ps.qd.iter())
+        .zip(BRAKE_START.iter().zip(ctrl.brake.iter()))
+        .enumerate()
+    {
+        let speed = qd.abs();
+        if speed > *start {
+            alarms |= alarm::VELOCITY_LIMIT;
+            if let Some(o) = over.get_mut(i) {
+                *o = true;
+            }
+            let lim = arm::TAU_MAX.get(i).copied().unwrap_or(Fx::ZERO);
+            let room = lim.sub_sat(t.abs()).max(Fx::ZERO);
+            let mag = b.mul_sat(speed.sub_sat(*start)).min(room);
+            *t = if qd.0 > 0 {
+                t.sub_sat(mag)
+            } else {
+                t.add_sat(mag)
+            };
+        }
+    }
+
+    // ---- Coupling torques Jᵀ·w, scaled as one vector to fit the motor
+    // limits left by the fixed torques (direction kept: the scaling is a
+    // gain ≤ 1 on the coupling, which the observer sees). A joint over its
+    // brake speed must not be driven along its motion: then the whole
+    // coupling vector is 0 this cycle.
+    let tau_c = arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench);
+    let mut s = Fx::ONE;
+    for (((tc, tf), lim), (qd, o)) in tau_c
+        .iter()
+        .zip(fixed.iter())
+        .zip(arm::TAU_MAX.iter())
+        .zip(ps.qd.iter().zip(over.iter()))
+    {
+        if *o && tc.mul_sat(*qd).0 > 0 {
+            s = Fx::ZERO;
+        }
+        s = s.min(fit_scale(*tf, *tc, *lim));
+    }
+    if s < Fx::ONE {
+        alarms |= alarm::TORQUE_SATURATED;
+        handle_wrench = handle_wrench.scale(s);
+    }
+    let tau_c = arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench);
+    let mut joint_torques = JOINTS_ZERO;
+    for (((o, tf), tc), lim) in joint_torques
+        .iter_mut()
+        .zip(fixed.iter())
+        .zip(tau_c.iter())
         .zip(arm::TAU_MAX.iter())
     {
-        *o = t.clamp_abs(*lim);
-        if *o != *t {
-            alarms |= alarm::TORQUE_SATURATED;
+        // Within the limit up to rounding of the scaled product.
+        *o = tf.add_sat(*tc).clamp_abs(*lim);
+    }
+    if ctrl.coupled {
+        ctrl.prev_wrench = handle_wrench;
+        for ((p, o), tf) in ctrl
+            .prev_tau_c
+            .iter_mut()
+            .zip(joint_torques.iter())
+            .zip(fixed.iter())
+        {
+            *p = o.sub_sat(*tf);
         }
     }
+    // ---- Slip: a force the spring could not apply (wrench saturation,
+    // torque-vector scaling) is not stored either. The spring's anchor slips
+    // so that the stretch left matches the force applied: its energy drops
+    // (dissipated), so raising the force again later cannot release energy
+    // that never entered. The slip is taken back at the ramp rate only when
+    // the observer holds the energy that costs (the spring's energy stays
+    // covered by the observer's).
+    if let (Some((d, e, d_eff, e_eff)), true) = (spring, ctrl.coupled) {
+        let lf = sat_f.mul_sat(s);
+        let lt = sat_t.mul_sat(s);
+        if lf < Fx::ONE || lt < Fx::ONE {
+            ctrl.slip = d.sub(d_eff.scale(lf));
+            ctrl.slip_rot = e.sub(e_eff.scale(lt));
+        } else if ctrl.slip != Vec3::ZERO || ctrl.slip_rot != Vec3::ZERO {
+            let keep = Fx::ONE.sub_sat(ctrl.ramp_step);
+            let slip = ctrl.slip.scale(keep);
+            let slip_rot = ctrl.slip_rot.scale(keep);
+            let v_old = spring_energy(&g, d_eff, e_eff);
+            let v_new = spring_energy(&g, d.sub(slip), e.sub(slip_rot));
+            let cost = v_new.sub_sat(v_old).max(Fx::ZERO);
+            if ctrl.po_energy.sub_sat(cost) >= v_new {
+                ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
+                ctrl.slip = slip;
+                ctrl.slip_rot = slip_rot;
+            }
+        }
+    }
+
+    // ---- The object feels the reaction of what the motors apply, in
+    // client frame and units.
+    let react = handle_wrench.neg().rotate(&base.orientation);
+    let coupling_wrench = Wrench {
+        force: react.force.scale(config.force_factor),
+        torque: react.torque.scale(config.force_factor.mul_sat(sf)),
+    };
 
     ControlOutput {
         joint_torques,
+        fixed_torques: fixed,
         handle_wrench,
         coupling_wrench,
         handle_pose_client,
@@ -479,5 +804,8 @@ pub fn cartesian_control(
         status: st,
         alarms,
         po_energy: ctrl.po_energy,
+        envelope: ctrl.envelope,
+        torque_scale: s,
+        spring_wrench,
     }
 }

@@ -1,7 +1,8 @@
 //! One SERVO cycle (spec §3.5) as a single function: the synchronizer's
 //! `receive_vp` (copy VPr when the protocol try-lock succeeded, else the best
-//! estimate), the servo step with the link watchdog applied to the coupling,
-//! and the answer frames of `send_vp`.
+//! estimate), the servo step with the link watchdog's gain bounding the
+//! coupling force at the motors (and so the answer, its reaction), and the
+//! answer frames of `send_vp`.
 //!
 //! The kernel's SERVO thread only takes the locks and moves bytes around this
 //! call; the host replay (`hap_replay`) calls the very same function, so a
@@ -10,7 +11,7 @@
 use super::config::ServoConfig;
 use super::fixed::Fx;
 use super::io::MotorLine;
-use super::proto_synchro::{answer_frame, answer_twist_frame, fade_wrench, twist_due, Synchro};
+use super::proto_synchro::{answer_frame, answer_twist_frame, twist_due, Synchro};
 use super::protocol::{encode, FrameHeader, MAX_FRAME_LEN};
 use super::servo::{Servo, ServoInputs, ServoMode};
 use super::vp::{VpReceived, VpSent};
@@ -18,11 +19,13 @@ use super::vp::{VpReceived, VpSent};
 /// What one cycle produced.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CycleResult {
-    /// The answer (VP), coupling wrench already faded by the link watchdog.
+    /// The answer (VP): its coupling wrench is the reaction of the force the
+    /// motors apply, already faded by the link watchdog.
     pub vp: VpSent,
     /// The VPr estimate was extrapolated (lock busy or frame late).
     pub extrapolated: bool,
-    /// The link watchdog gain applied to the coupling, [0, 1].
+    /// The link watchdog gain, [0, 1]: the coupling envelope at the motors
+    /// stays at or below it.
     pub link_gain: Fx,
 }
 
@@ -68,8 +71,17 @@ impl ServoCycle {
         if est.link_gain == Fx::ZERO {
             vpr.valid = false;
         }
+        // The watchdog's gain bounds the coupling envelope, so the force the
+        // motors apply and the answer's wrench (its reaction) are both faded.
+        // A closed session (no VPr copy) is not a silent link: the
+        // coupling then ramps down on its own (control.md).
+        let gain = if self.synchro.last().valid {
+            est.link_gain
+        } else {
+            Fx::ONE
+        };
+        self.servo.set_link_gain(gain);
         let mut vp = *self.servo.step(line, inputs, config, &vpr, mode);
-        vp.coupling_wrench = fade_wrench(&vp.coupling_wrench, est.link_gain);
         vp.status |= est.status;
         CycleResult {
             vp,

@@ -12,8 +12,9 @@
 //! silent: with `age` = time since the VPr in use was received, the gain
 //! is 1 up to [`LINK_FADE_START_US`] (50 ms), decreases linearly to 0 at
 //! [`LINK_FADE_END_US`] (100 ms), and stays 0 after (and before the first
-//! VPr of a session). SERVO multiplies the coupling wrench by it
-//! ([`fade_wrench`]).
+//! VPr of a session). SERVO bounds the coupling envelope by it
+//! (`control::Controller::set_link_gain`): the force the motors apply is at
+//! most `gain · MAX_FORCE`, and the answer's wrench is its reaction.
 //!
 //! `send_vp`: [`answer_frame`] builds the per-cycle `Answer` from `VpSent`,
 //! [`answer_twist_frame`] the `AnswerTwist` sent every [`TWIST_EVERY`]

@@ -8,9 +8,9 @@
 //!
 //! `ServoMode::Main` is the normal path. `ServoMode::Degraded` is the spec's
 //! auxiliary SERVO path, entered after a deadline miss: the same code (spec
-//! §3.5), with the coupling stiffness halved (a missed deadline may double
-//! the effective period; halving K keeps the passivity margin b > K·T/2)
-//! and extra joint damping; `status::DEGRADED` set.
+//! §3.5) and the same gains, which are scheduled for an effective period of
+//! 2T (a missed deadline may double it), so switching path injects no
+//! energy; `status::DEGRADED` set.
 //!
 //! Initial calibration: the simulated arm starts at rest in
 //! [`super::arm::REST_Q`] (shoulder on its stop, forearm and wrist hanging),
@@ -21,7 +21,7 @@
 //! call `init` once (or let the first `step` do it).
 
 use super::config::ServoConfig;
-use super::control::{cartesian_control, Controller};
+use super::control::{cartesian_control, ControlOutput, Controller};
 use super::effort::{EffortKeyframe, EffortParseError, EffortPlayer, EffortSample};
 use super::fixed::Fx;
 use super::io::{self, MotorLine};
@@ -85,6 +85,7 @@ pub struct Servo {
     alarms: u32,
     vp: VpSent,
     log: LogRecord,
+    out: ControlOutput,
 }
 
 const VP_ZERO: VpSent = VpSent {
@@ -112,6 +113,20 @@ impl Servo {
             alarms: 0,
             vp: VP_ZERO,
             log: LogRecord::ZERO,
+            out: ControlOutput {
+                joint_torques: super::fixed::JOINTS_ZERO,
+                fixed_torques: super::fixed::JOINTS_ZERO,
+                handle_wrench: super::fixed::Wrench::ZERO,
+                coupling_wrench: super::fixed::Wrench::ZERO,
+                handle_pose_client: super::fixed::Pose::IDENTITY,
+                handle_twist_client: super::fixed::Twist::ZERO,
+                status: 0,
+                alarms: 0,
+                po_energy: Fx::ZERO,
+                envelope: Fx::ZERO,
+                torque_scale: Fx::ONE,
+                spring_wrench: super::fixed::Wrench::ZERO,
+            },
         }
     }
 
@@ -145,6 +160,12 @@ impl Servo {
         &self.vp
     }
 
+    /// What the controller computed in the last step (joint torques, the
+    /// coupling wrench applied through the motors, envelope).
+    pub fn control_output(&self) -> &ControlOutput {
+        &self.out
+    }
+
     /// The log record of the last step.
     pub fn log_record(&self) -> &LogRecord {
         &self.log
@@ -164,6 +185,16 @@ impl Servo {
 
     pub fn controller_mut(&mut self) -> &mut Controller {
         &mut self.ctrl
+    }
+
+    /// The link watchdog's gain for the next step, [0, 1]: the coupling
+    /// force that reaches the motors is at most this fraction of its bound
+    /// (`ServoCycle::run` sets it every cycle; a bare `Servo` keeps 1).
+    pub fn set_link_gain(&mut self, g: Fx) {
+        if !self.initialized {
+            self.init();
+        }
+        self.ctrl.set_link_gain(g);
     }
 
     pub fn effort(&self) -> &EffortPlayer {
@@ -243,6 +274,7 @@ impl Servo {
         let out = cartesian_control(&mut self.ctrl, &ls, &ps, config, vpr);
         io::send_commands(line, &out.joint_torques);
         self.sim.simulate_arm(line);
+        self.out = out;
 
         self.alarms = ls.alarms | out.alarms;
         let st = ls.status | out.status;

@@ -68,6 +68,11 @@ fn coupling_to_a_static_object_converges() {
         let vp = s.step(&inputs, &cfg, &vpr, ServoMode::Main);
         assert!(vp.status & status::COUPLED != 0);
         if n == 0 {
+            // Soft start: the first cycle carries at most one ramp step.
+            let f0 = vp.coupling_wrench.force.norm().to_f64();
+            assert!(f0 <= MAX_FORCE.to_f64() * 0.02 + 1e-6, "{f0}");
+        }
+        if n == 50 {
             first_force = Vec3::to_f64(vp.coupling_wrench.force)
                 .iter()
                 .map(|f| f * f)
@@ -83,16 +88,17 @@ fn coupling_to_a_static_object_converges() {
         .norm()
         .to_f64();
     let f = s.vp().coupling_wrench.force.norm().to_f64();
-    println!("coupling: initial force {first_force:.2} N, after 3 s: distance {d:.2e} m, angle {e:.2e} rad, force {f:.2e} N");
-    assert!(first_force > 10.0);
+    println!("coupling: force after the 50 ms ramp {first_force:.2} N, after 3 s: distance {d:.2e} m, angle {e:.2e} rad, force {f:.2e} N");
+    assert!(first_force > 5.0, "{first_force}");
     assert!(d < 1e-3, "{d}");
-    assert!(e < 1e-2, "{e}");
+    // K_r = 2.6 N·m/rad at 1 ms (joint-space bound at 2T): slower in rotation.
+    assert!(e < 3e-2, "{e}");
     assert!(f < 1.0);
 }
 
 /// A client-side virtual wall (god-object proxy): the object follows the
 /// handle but cannot go beyond `x_wall` along +x.
-fn wall_run(gains: Gains, push: f64, seconds: usize) -> (Vec<f64>, f64, u32) {
+fn wall_run(gains: Gains, push: f64, seconds: usize) -> (Vec<f64>, f64, u32, StandaloneServo) {
     let mut s = powered_servo_at_work();
     s.controller_mut().gains = gains;
     let cfg = ServoConfig {
@@ -131,7 +137,7 @@ fn wall_run(gains: Gains, push: f64, seconds: usize) -> (Vec<f64>, f64, u32) {
         }
         alarms |= s.vp().alarms;
     }
-    (xs, min_energy, alarms)
+    (xs, min_energy, alarms, s)
 }
 
 fn amplitude(x: &[f64]) -> f64 {
@@ -146,27 +152,35 @@ fn stiff_wall_at_the_bound_is_stable_and_passive() {
     let period = Fx::from_ns(PERIOD_NS as u64);
     let g = Gains::at_bound(period);
     let nominal = Gains::for_period(period);
-    let (xs, min_energy, alarms) = wall_run(g, 5.0, 6);
+    let (xs, min_energy, alarms, s) = wall_run(g, 2.0, 6);
     let pen1 = xs[2500];
     let pen2 = *xs.last().unwrap();
     let early = amplitude(&xs[3200..3700]);
     let late = amplitude(&xs[5500..6000]);
     let k = g.k_lin.to_f64();
+    // No force was refused: the spring did not slip (beyond rounding).
+    assert!(s.controller().slip().0.norm().to_f64() < 1e-6);
     println!(
-        "wall K = {k:.0} N/m (nominal {:.0}): penetration {:.2} mm @5 N, {:.2} mm @10 N (expected {:.2}/{:.2}); \
+        "wall K = {k:.0} N/m (nominal {:.0}): penetration {:.2} mm @2 N, {:.2} mm @4 N (expected {:.2}/{:.2}); \
          oscillation p-p after step {:.3e} m, last 0.5 s {:.3e} m; min PO energy {:.3e} J; alarms {alarms:#x}",
-        nominal.k_lin.to_f64(), pen1 * 1e3, pen2 * 1e3, 5.0 / k * 1e3, 10.0 / k * 1e3, early, late, min_energy
+        nominal.k_lin.to_f64(), pen1 * 1e3, pen2 * 1e3, 2.0 / k * 1e3, 4.0 / k * 1e3, early, late, min_energy
     );
-    assert!(k > 1800.0 && k > nominal.k_lin.to_f64());
+    // The stiffest gains offered at 1 ms (joint-space bound at 2T, margin 0.95).
+    assert!(k > 240.0 && k > nominal.k_lin.to_f64());
     // Steady penetration close to F/K (the proxy lags one cycle).
-    assert!((pen1 - 5.0 / k).abs() < 0.5e-3, "{pen1}");
-    assert!((pen2 - 10.0 / k).abs() < 1e-3, "{pen2}");
+    // (2 N and 4 N keep the soft wall's penetration inside the reach; 10 N
+    // would push the arm to full extension, where x is singular.)
+    // The soft wall (ζ ≈ 0.1) still rings slightly when sampled.
+    assert!((pen1 - 2.0 / k).abs() < 0.15 * 2.0 / k, "{pen1}");
+    assert!((pen2 - 4.0 / k).abs() < 0.15 * 4.0 / k, "{pen2}");
     // No growing oscillation; it dies out.
     assert!(late <= early + 1e-9, "{late} vs {early}");
-    assert!(late < 1e-5, "{late}");
+    assert!(late < 0.1 * early, "{late} vs {early}");
     // The passivity observer's energy never goes negative, i.e. the
     // coupling never generated energy.
     assert!(min_energy >= -1e-6, "{min_energy}");
+    // ...and the passivity controller never had to act.
+    assert_eq!(alarms & alarm::PASSIVITY, 0, "{alarms:#x}");
 }
 
 #[test]

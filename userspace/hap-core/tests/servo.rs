@@ -174,7 +174,7 @@ fn fail_safe_inhibits_for_good() {
 }
 
 #[test]
-fn degraded_mode_couples_softer_and_is_flagged() {
+fn degraded_mode_couples_with_the_same_gains_and_is_flagged() {
     let mut s = StandaloneServo::new(PERIOD_NS);
     s.init();
     s.simulator_mut().set_state(&arm::WORK_Q, &JOINTS_ZERO);
@@ -193,8 +193,9 @@ fn degraded_mode_couples_softer_and_is_flagged() {
     assert_ne!(vp.status & status::COUPLED, 0);
     let mut inputs = on;
     inputs.power_request = PowerRequest::None;
-    // The degraded path keeps force feedback, with half the stiffness: the
-    // same spring deflection gives about half the coupling force.
+    // The degraded path keeps force feedback with the same gains (they are
+    // scheduled for an effective period of 2T): the same spring deflection
+    // gives the same force, so switching path injects no energy.
     // (a target 3 mm from the handle: below the 20 N saturation)
     let mut near = vpr;
     near.pose = vp.handle_pose;
@@ -213,10 +214,8 @@ fn degraded_mode_couples_softer_and_is_flagged() {
     };
     let (fm, fd) = (f(vp_main.coupling_wrench), f(vp_deg.coupling_wrench));
     assert!(fm > 0.1, "main path couples ({fm} N)");
-    assert!(
-        fd < fm * 0.75 && fd > fm * 0.25,
-        "degraded force {fd} N vs main {fm} N"
-    );
+    assert_eq!(vp_main.coupling_wrench, vp_deg.coupling_wrench);
+    assert!(fd > 0.1);
     for _ in 0..500 {
         let vp = *s.step(&inputs, &cfg, &vpr, ServoMode::Degraded);
         assert_ne!(vp.status & status::DEGRADED, 0);

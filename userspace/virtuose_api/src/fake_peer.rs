@@ -3,9 +3,11 @@
 //!
 //! It grants one session (other source addresses are ignored, like the
 //! bridge does), acknowledges configuration requests, and answers every
-//! VprStream with an Answer: the handle follows a scripted sinusoid, and the
-//! coupling wrench is a spring-damper between the handle and the streamed
-//! virtual object (only while a virtual object is attached and power is on).
+//! VprStream with an Answer (or, with `answer_every_period`, answers every
+//! period while the session is open, like the controller): the handle
+//! follows a scripted sinusoid, and the coupling wrench is a spring-damper
+//! between the handle and the streamed virtual object (only while a virtual
+//! object is attached and power is on).
 
 use std::collections::BTreeMap;
 use std::net::{SocketAddr, UdpSocket};
@@ -41,6 +43,14 @@ pub struct FakePeerConfig {
     pub twist_every: u32,
     /// Start with the arm powered.
     pub powered: bool,
+    /// Answer every `period_us` while a session is open, like the
+    /// controller (true), instead of once per VprStream (false).
+    pub answer_every_period: bool,
+    /// `hap_core::vp::status` bits added to every answer (buttons,
+    /// emergency stop...).
+    pub extra_status: u32,
+    /// `hap_core::vp::alarm` bits reported in every answer.
+    pub alarms: u32,
 }
 
 impl Default for FakePeerConfig {
@@ -57,6 +67,9 @@ impl Default for FakePeerConfig {
             duplicate_every: 0,
             twist_every: 10,
             powered: false,
+            answer_every_period: false,
+            extra_status: 0,
+            alarms: 0,
         }
     }
 }
@@ -75,6 +88,15 @@ pub struct FakePeerStats {
     pub attached: bool,
     /// Last virtual-object position streamed.
     pub last_vo_position: [f64; 3],
+    /// Last virtual-object pose streamed, `[x,y,z,qx,qy,qz,qw]`.
+    pub last_vo_pose: [f64; 7],
+    /// Handle position of the last answer sent.
+    pub last_handle_position: [f64; 3],
+    /// Last command type set (wire value).
+    pub command_type: Option<u32>,
+    /// Largest distance between a streamed virtual-object position and the
+    /// handle position of the last answer sent before it, m.
+    pub max_vo_offset: f64,
     pub client: Option<SocketAddr>,
 }
 
@@ -167,7 +189,103 @@ fn run(
             n
         };
 
+    let mut last_vpr: Option<(Pose, Twist, u32)> = None;
+    let mut next_answer = Instant::now();
+    let period = Duration::from_micros(cfg.period_us.max(100) as u64);
+    let mut answer = |seq: &mut u32,
+                      session: u16,
+                      src: SocketAddr,
+                      out: &mut [u8; MAX_FRAME_LEN],
+                      vpr: &Option<(Pose, Twist, u32)>,
+                      powered: bool,
+                      attached: bool| {
+        let t = t0.elapsed().as_secs_f64();
+        let mut hp = [0.0; 3];
+        let mut hv = [0.0; 3];
+        for i in 0..3 {
+            hp[i] = cfg.center[i] + cfg.amplitude[i] * (w * t).sin();
+            hv[i] = cfg.amplitude[i] * w * (w * t).cos();
+        }
+        let (vo, vv, vpr_seq) = match vpr {
+            Some((p, tw, s)) => (p.position.to_f64(), tw.linear.to_f64(), *s),
+            None => (hp, hv, 0),
+        };
+        let mut f = [0.0; 3];
+        if attached && powered && vpr.is_some() {
+            for i in 0..3 {
+                f[i] = cfg.stiffness * (hp[i] - vo[i]) + cfg.damping * (hv[i] - vv[i]);
+            }
+        }
+        cycle = cycle.wrapping_add(1);
+        let mut st = status::DEAD_MAN | cfg.extra_status;
+        if powered {
+            st |= status::POWER_ON | status::MOTORS_ENABLED;
+        }
+        if attached {
+            st |= status::COUPLED;
+        }
+        let a = Answer {
+            handle_pose: Pose {
+                position: v3(hp),
+                orientation: Default::default(),
+            },
+            coupling_wrench: Wrench {
+                force: v3(f),
+                torque: Vec3::default(),
+            },
+            status: st,
+            alarms: cfg.alarms,
+            cycle,
+            vpr_seq,
+        };
+        n_answers += 1;
+        let drop_it = cfg.drop_every > 0 && n_answers % cfg.drop_every as u64 == 0;
+        if drop_it {
+            *seq = seq.wrapping_add(1); // a lost datagram leaves a gap
+        } else {
+            let len = send(&Frame::Answer(a), seq, session, src, out);
+            if cfg.duplicate_every > 0 && n_answers % cfg.duplicate_every as u64 == 0 {
+                let _ = sock.send_to(&out[..len], src);
+            }
+        }
+        if cfg.twist_every > 0 && n_answers % cfg.twist_every as u64 == 0 {
+            let tw = AnswerTwist {
+                handle_twist: Twist {
+                    linear: v3(hv),
+                    angular: Vec3::default(),
+                },
+                status: st,
+                alarms: cfg.alarms,
+                cycle,
+                vpr_seq,
+            };
+            send(&Frame::AnswerTwist(tw), seq, session, src, out);
+        }
+        if let Ok(mut s) = stats.lock() {
+            s.answers_sent = n_answers;
+            s.last_handle_position = hp;
+        }
+    };
+
     while !stop.load(Ordering::SeqCst) {
+        if cfg.answer_every_period {
+            if let Some(c) = client {
+                let now = Instant::now();
+                if now >= next_answer {
+                    answer(&mut seq, session, c, &mut out, &last_vpr, powered, attached);
+                    next_answer += period;
+                    if next_answer < now {
+                        next_answer = now + period;
+                    }
+                }
+                let wait = next_answer
+                    .saturating_duration_since(Instant::now())
+                    .max(Duration::from_micros(50));
+                let _ = sock.set_read_timeout(Some(wait));
+            } else {
+                let _ = sock.set_read_timeout(Some(Duration::from_millis(50)));
+            }
+        }
         let (n, src) = match sock.recv_from(&mut buf) {
             Ok(x) => x,
             Err(_) => continue,
@@ -237,6 +355,7 @@ fn run(
                 ack(&mut seq, session, &mut out);
                 client = None;
                 attached = false;
+                last_vpr = None;
             }
             Frame::PowerRequest(on) => {
                 powered = on;
@@ -251,70 +370,33 @@ fn run(
                 ack(&mut seq, session, &mut out);
             }
             Frame::VprStream { pose, twist } => {
-                let t = t0.elapsed().as_secs_f64();
-                let mut hp = [0.0; 3];
-                let mut hv = [0.0; 3];
-                for i in 0..3 {
-                    hp[i] = cfg.center[i] + cfg.amplitude[i] * (w * t).sin();
-                    hv[i] = cfg.amplitude[i] * w * (w * t).cos();
-                }
-                let vo = pose.position.to_f64();
-                let vv = twist.linear.to_f64();
-                let mut f = [0.0; 3];
-                if attached && powered {
-                    for i in 0..3 {
-                        f[i] = cfg.stiffness * (hp[i] - vo[i]) + cfg.damping * (hv[i] - vv[i]);
-                    }
-                }
-                cycle = cycle.wrapping_add(1);
-                let mut st = status::DEAD_MAN;
-                if powered {
-                    st |= status::POWER_ON | status::MOTORS_ENABLED;
-                }
-                if attached {
-                    st |= status::COUPLED;
-                }
-                let answer = Answer {
-                    handle_pose: Pose {
-                        position: v3(hp),
-                        orientation: Default::default(),
-                    },
-                    coupling_wrench: Wrench {
-                        force: v3(f),
-                        torque: Vec3::default(),
-                    },
-                    status: st,
-                    alarms: 0,
-                    cycle,
-                    vpr_seq: h.seq,
-                };
-                n_answers += 1;
-                let drop_it = cfg.drop_every > 0 && n_answers % cfg.drop_every as u64 == 0;
-                if drop_it {
-                    seq = seq.wrapping_add(1); // a lost datagram leaves a gap
-                } else {
-                    let len = send(&Frame::Answer(answer), &mut seq, session, src, &mut out);
-                    if cfg.duplicate_every > 0 && n_answers % cfg.duplicate_every as u64 == 0 {
-                        let _ = sock.send_to(&out[..len], src);
-                    }
-                }
-                if cfg.twist_every > 0 && n_answers % cfg.twist_every as u64 == 0 {
-                    let tw = AnswerTwist {
-                        handle_twist: Twist {
-                            linear: v3(hv),
-                            angular: Vec3::default(),
-                        },
-                        status: st,
-                        alarms: 0,
-                        cycle,
-                        vpr_seq: h.seq,
-                    };
-                    send(&Frame::AnswerTwist(tw), &mut seq, session, src, &mut out);
-                }
+                last_vpr = Some((pose, twist, h.seq));
                 if let Ok(mut s) = stats.lock() {
-                    s.last_vo_position = vo;
-                    s.answers_sent = n_answers;
+                    s.last_vo_position = pose.position.to_f64();
+                    let o = pose.orientation.to_f64();
+                    let p = s.last_vo_position;
+                    s.last_vo_pose = [p[0], p[1], p[2], o[0], o[1], o[2], o[3]];
+                    if s.answers_sent > 0 {
+                        let h = s.last_handle_position;
+                        let d =
+                            ((p[0] - h[0]).powi(2) + (p[1] - h[1]).powi(2) + (p[2] - h[2]).powi(2))
+                                .sqrt();
+                        if d > s.max_vo_offset {
+                            s.max_vo_offset = d;
+                        }
+                    }
                 }
+                if !cfg.answer_every_period {
+                    answer(
+                        &mut seq, session, src, &mut out, &last_vpr, powered, attached,
+                    );
+                }
+            }
+            Frame::SetCommandType(t) => {
+                if let Ok(mut s) = stats.lock() {
+                    s.command_type = Some(t as u32);
+                }
+                ack(&mut seq, session, &mut out);
             }
             _ => ack(&mut seq, session, &mut out),
         }

@@ -1,34 +1,136 @@
-//! C ABI, Haption VirtuoseAPI style (see `include/virtuose_api.h`).
+//! C ABI: Haption's VirtuoseAPI 4.x (`include/VirtuoseAPI.h`) plus
+//! hapticctrl's extensions (`include/virtuose_api.h`).
 //!
 //! Every function returns 0 on success and -1 on error (virtOpen: NULL);
-//! the error is then available from `virtGetErrorCode` and
-//! `virtGetErrorMessage`. Errors are kept per calling thread. Float arrays:
-//! position `float[7]` (x, y, z, qx, qy, qz, qw), speed and force `float[6]`.
+//! the error is then available from `virtGetErrorCode` (VirtuoseAPI's
+//! `VIRT_E_*` codes) and `virtGetErrorMessage`. Errors are kept per calling
+//! thread. Float arrays: position `float[7]` (x, y, z, qx, qy, qz, qw),
+//! speed and force `float[6]`.
+//!
+//! A context may be used from two threads at once (the application and the
+//! periodic callback loop): its session, its VirtuoseAPI state and its loop
+//! are behind separate mutexes, never held together.
 
 use std::cell::RefCell;
-use std::ffi::{c_char, c_float, c_int, c_uint, c_ushort, CStr, CString};
+use std::ffi::{c_char, c_float, c_int, c_uint, c_ushort, c_void, CStr, CString};
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::{JoinHandle, ThreadId};
+use std::time::{Duration, Instant};
 
+use hap_core::control::Gains;
+use hap_core::fixed::Fx;
+use hap_core::protocol::{ERROR_NO_SESSION, ERROR_REFUSED};
+use hap_core::vp::{alarm, status};
+
+use crate::kin::{self, Frames};
 use crate::{CommandType, IndexingMode, VirtContext, VirtError};
 
-/// Opaque handle given to C.
-pub struct VirtContextS {
-    vc: VirtContext,
+// ---- VirtuoseAPI.h values ----------------------------------------------
+
+pub const VIRT_E_NO_ERROR: c_int = 0;
+pub const VIRT_E_OUT_OF_MEMORY: c_int = 1;
+pub const VIRT_E_COMMUNICATION_FAILURE: c_int = 2;
+pub const VIRT_E_INVALID_CONTEXT: c_int = 3;
+pub const VIRT_E_FILE_NOT_FOUND: c_int = 4;
+pub const VIRT_E_WRONG_FORMAT: c_int = 5;
+pub const VIRT_E_TIME_OUT: c_int = 6;
+pub const VIRT_E_NOT_IMPLEMENTED: c_int = 7;
+pub const VIRT_E_VARIABLE_NOT_AVAILABLE: c_int = 8;
+pub const VIRT_E_INCORRECT_VALUE: c_int = 9;
+pub const VIRT_E_SYNTAX_ERROR: c_int = 10;
+pub const VIRT_E_HARDWARE_ERROR: c_int = 11;
+pub const VIRT_E_PERIODIC_FUNCTION: c_int = 14;
+pub const VIRT_E_WRONG_MODE: c_int = 17;
+pub const VIRT_E_CALL_TIME: c_int = 19;
+pub const VIRT_E_ALREADY_CALLED: c_int = 22;
+
+pub const COMMAND_TYPE_NONE: c_int = 0;
+pub const COMMAND_TYPE_IMPEDANCE: c_int = 3;
+pub const COMMAND_TYPE_VIRTMECH: c_int = 5;
+pub const COMMAND_TYPE_ARTICULAR: c_int = 6;
+pub const COMMAND_TYPE_ARTICULAR_IMPEDANCE: c_int = 7;
+
+pub const VIRT_ALARM_SATURATE: c_uint = 0x0000_8000;
+pub const VIRT_ALARM_CALLBACK_OVERRUN: c_uint = 0x0002_0000;
+
+/// Value of `virtAPIVersion`: the VirtuoseAPI version these declarations follow.
+pub const API_VERSION: (c_int, c_int) = (4, 4);
+/// Device type reported by `virtGetDeviceID` ("HC").
+pub const DEVICE_TYPE: c_int = 0x4843;
+/// Trajectory recording: most samples one file receives.
+pub const TRAJ_MAX_SAMPLES: u64 = 1_000_000;
+
+// ---- errors --------------------------------------------------------------
+
+/// An error as the C ABI reports it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ApiError {
+    pub code: c_int,
+    pub msg: String,
 }
+
+impl ApiError {
+    fn new(code: c_int, msg: impl Into<String>) -> ApiError {
+        ApiError {
+            code,
+            msg: msg.into(),
+        }
+    }
+
+    fn not_implemented(what: &str) -> ApiError {
+        ApiError::new(
+            VIRT_E_NOT_IMPLEMENTED,
+            format!("{what}: not implemented by hapticctrl (see Documentation/userguide.md)"),
+        )
+    }
+
+    fn null() -> ApiError {
+        ApiError::new(VIRT_E_INCORRECT_VALUE, "null pointer argument")
+    }
+}
+
+/// VirtuoseAPI code of a crate error.
+pub fn haption_code(e: &VirtError) -> c_int {
+    match e {
+        VirtError::InvalidAddress(_) => VIRT_E_SYNTAX_ERROR,
+        VirtError::Io(_) => VIRT_E_COMMUNICATION_FAILURE,
+        VirtError::Timeout(_) => VIRT_E_TIME_OUT,
+        VirtError::Refused { reason, .. } => match *reason {
+            ERROR_NO_SESSION => VIRT_E_COMMUNICATION_FAILURE,
+            ERROR_REFUSED => VIRT_E_WRONG_MODE,
+            _ => VIRT_E_INCORRECT_VALUE,
+        },
+        VirtError::InvalidArgument(_) => VIRT_E_INCORRECT_VALUE,
+        VirtError::NoData => VIRT_E_VARIABLE_NOT_AVAILABLE,
+        VirtError::Closed | VirtError::NullPointer => VIRT_E_INVALID_CONTEXT,
+    }
+}
+
+impl From<VirtError> for ApiError {
+    fn from(e: VirtError) -> ApiError {
+        ApiError::new(haption_code(&e), e.to_string())
+    }
+}
+
+type R<T> = Result<T, ApiError>;
 
 thread_local! {
     static LAST: RefCell<(c_int, CString)> = RefCell::new((0, CString::default()));
 }
 
-fn set_error(e: &VirtError) {
-    let msg = CString::new(e.to_string().replace('\0', " ")).unwrap_or_default();
-    LAST.with(|l| *l.borrow_mut() = (e.code(), msg));
+fn set_error(e: &ApiError) {
+    let msg = CString::new(e.msg.replace('\0', " ")).unwrap_or_default();
+    LAST.with(|l| *l.borrow_mut() = (e.code, msg));
 }
 
 fn clear_error() {
     LAST.with(|l| *l.borrow_mut() = (0, CString::default()));
 }
 
-fn status(r: Result<(), VirtError>) -> c_int {
+fn status_of(r: R<()>) -> c_int {
     match r {
         Ok(()) => {
             clear_error();
@@ -41,20 +143,234 @@ fn status(r: Result<(), VirtError>) -> c_int {
     }
 }
 
+// ---- the context -----------------------------------------------------------
+
+type PeriodicFn = unsafe extern "C" fn(*mut c_void, *mut c_void);
+
+/// VirtuoseAPI state kept by the library (what the getters return).
+struct ApiState {
+    time_step: f32,
+    /// Haption value (0, 3, 5).
+    command: c_int,
+    indexing: c_int,
+    frames: Frames,
+    observation: [f32; 7],
+    timeout_s: f32,
+    force_cmd: [f32; 6],
+    added_force: [f32; 6],
+    saturation: (f32, f32),
+    force_feedback: bool,
+    /// Mass of the attached virtual object (VIRTMECH stiffness cap).
+    vo_mass: Option<f32>,
+    last_q: Option<[f64; 6]>,
+    debug_flags: c_ushort,
+    output_file: Option<PathBuf>,
+    traj_step: f32,
+    periodic: Option<(PeriodicFn, usize, f32)>,
+}
+
+impl Default for ApiState {
+    fn default() -> Self {
+        ApiState {
+            time_step: 0.001,
+            command: COMMAND_TYPE_NONE,
+            indexing: 0,
+            frames: Frames::default(),
+            observation: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            timeout_s: 1.0,
+            force_cmd: [0.0; 6],
+            added_force: [0.0; 6],
+            saturation: (
+                hap_core::control::MAX_FORCE.to_f64() as f32,
+                hap_core::control::MAX_TORQUE.to_f64() as f32,
+            ),
+            force_feedback: true,
+            vo_mass: None,
+            last_q: None,
+            debug_flags: 0,
+            output_file: None,
+            traj_step: 0.01,
+            periodic: None,
+        }
+    }
+}
+
+/// A background thread of the context (callback loop, trajectory recorder).
+struct Worker {
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<()>>,
+    id: ThreadId,
+}
+
+impl Worker {
+    /// Ask the thread to stop; join it unless called from it.
+    fn stop(mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if std::thread::current().id() != self.id {
+            if let Some(h) = self.handle.take() {
+                let _ = h.join();
+            }
+        }
+    }
+
+    fn running(&self) -> bool {
+        !self.stop.load(Ordering::SeqCst)
+            && self
+                .handle
+                .as_ref()
+                .map(|h| !h.is_finished())
+                .unwrap_or(false)
+    }
+}
+
+/// Opaque handle given to C (`VirtContext`).
+pub struct VirtContextS {
+    vc: Mutex<VirtContext>,
+    st: Mutex<ApiState>,
+    periodic_loop: Mutex<Option<Worker>>,
+    recorder: Mutex<Option<Worker>>,
+    overrun_latched: AtomicBool,
+    overruns: AtomicU32,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    match m.lock() {
+        Ok(g) => g,
+        Err(p) => p.into_inner(),
+    }
+}
+
+impl VirtContextS {
+    fn session(&self) -> MutexGuard<'_, VirtContext> {
+        lock(&self.vc)
+    }
+
+    fn state(&self) -> MutexGuard<'_, ApiState> {
+        lock(&self.st)
+    }
+
+    /// A reading from the last answer; before the first answer of the
+    /// session, wait for it up to the time-out value.
+    fn read<T>(&self, f: impl Fn(&VirtContext) -> crate::Result<T>) -> R<T> {
+        let timeout = Duration::from_secs_f32(self.state().timeout_s);
+        let deadline = Instant::now() + timeout;
+        loop {
+            let r = {
+                let vc = self.session();
+                f(&vc)
+            };
+            match r {
+                Err(VirtError::NoData) if Instant::now() < deadline => {
+                    let vc = self.session();
+                    vc.wait_answer(Duration::from_millis(20));
+                }
+                Err(VirtError::NoData) => {
+                    return Err(ApiError::new(
+                        VIRT_E_TIME_OUT,
+                        "no answer received from the controller within the time-out value",
+                    ))
+                }
+                r => return r.map_err(ApiError::from),
+            }
+        }
+    }
+
+    fn physical_pose(&self) -> R<[f32; 7]> {
+        let world = self.read(|v| v.get_position())?;
+        Ok(self.state().frames.physical_pose(&world))
+    }
+
+    fn joints(&self) -> R<[f64; 6]> {
+        let phys = self.physical_pose()?;
+        let prev = self.state().last_q;
+        let q = kin::inverse_kinematics(&phys, prev.as_ref()).ok_or_else(|| {
+            ApiError::new(
+                VIRT_E_VARIABLE_NOT_AVAILABLE,
+                "handle pose out of the arm's reach (base frame or indexing offset inconsistent)",
+            )
+        })?;
+        self.state().last_q = Some(q);
+        Ok(q)
+    }
+
+    /// The coupling stiffnesses the controller uses (arm units).
+    fn gains(&self, vc: &VirtContext, vo_mass: Option<f32>, ts: f32) -> (f64, f64) {
+        let period_us = vc.link_stats().period_us.max(1);
+        let g = Gains::for_period(Fx::from_ratio(period_us as i64, 1_000_000));
+        let mut k_lin = g.k_lin.to_f64();
+        if let Some(m) = vo_mass {
+            let ts = ts as f64;
+            if ts > 0.0 {
+                k_lin = k_lin.min(m as f64 / (ts * ts));
+            }
+        }
+        (k_lin, g.k_rot.to_f64())
+    }
+
+    /// COMMAND_TYPE_IMPEDANCE: stream the coupling set-point that applies
+    /// the commanded force (virtSetForce + virtAddForce) to the handle.
+    fn stream_force(&self) -> R<()> {
+        let (frames, wrench, sat, mass, ts) = {
+            let st = self.state();
+            if st.command != COMMAND_TYPE_IMPEDANCE || !st.force_feedback {
+                return Ok(());
+            }
+            let mut w = st.force_cmd;
+            for (a, b) in w.iter_mut().zip(st.added_force.iter()) {
+                *a += *b;
+            }
+            (st.frames, w, st.saturation, st.vo_mass, st.time_step)
+        };
+        let handle = self.read(|v| v.get_position())?;
+        let twist = self.read(|v| v.get_speed()).unwrap_or([0.0; 6]);
+        let w = kin::saturate(&wrench, sat.0, sat.1);
+        let mut vc = self.session();
+        let (k_lin, k_rot) = self.gains(&vc, mass, ts);
+        let target = kin::force_setpoint(&frames, &handle, &w, k_lin, k_rot);
+        vc.set_speed(&twist)?;
+        vc.set_position(&target)?;
+        Ok(())
+    }
+
+    fn loop_running(&self) -> bool {
+        lock(&self.periodic_loop)
+            .as_ref()
+            .map(|w| w.running())
+            .unwrap_or(false)
+    }
+
+    fn stop_workers(&self) {
+        if let Some(w) = lock(&self.periodic_loop).take() {
+            w.stop();
+        }
+        if let Some(w) = lock(&self.recorder).take() {
+            w.stop();
+        }
+    }
+}
+
 /// # Safety
-/// `vc` is NULL or a pointer returned by `virtOpen` and not yet closed.
-unsafe fn ctx<'a>(vc: *mut VirtContextS) -> Result<&'a mut VirtContext, VirtError> {
+/// `vc` is NULL or a live pointer from `virtOpen`.
+unsafe fn ctx<'a>(vc: *mut c_void) -> R<&'a VirtContextS> {
     // SAFETY: per the caller's contract.
-    unsafe { vc.as_mut() }
-        .map(|c| &mut c.vc)
-        .ok_or(VirtError::NullPointer)
+    unsafe { (vc as *const VirtContextS).as_ref() }
+        .ok_or_else(|| ApiError::new(VIRT_E_INVALID_CONTEXT, "null or invalid context"))
+}
+
+/// Run `f` on the context and turn its result into the C status.
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+unsafe fn run(vc: *mut c_void, f: impl FnOnce(&VirtContextS) -> R<()>) -> c_int {
+    // SAFETY: per the caller's contract.
+    status_of(unsafe { ctx(vc) }.and_then(f))
 }
 
 /// # Safety
 /// `p` is NULL or points to `N` readable floats.
-unsafe fn read_arr<const N: usize>(p: *const c_float) -> Result<[f32; N], VirtError> {
+unsafe fn read_arr<const N: usize>(p: *const c_float) -> R<[f32; N]> {
     if p.is_null() {
-        return Err(VirtError::NullPointer);
+        return Err(ApiError::null());
     }
     let mut a = [0f32; N];
     // SAFETY: p points to N floats per the caller's contract.
@@ -64,133 +380,763 @@ unsafe fn read_arr<const N: usize>(p: *const c_float) -> Result<[f32; N], VirtEr
 
 /// # Safety
 /// `p` is NULL or points to `N` writable floats.
-unsafe fn write_arr<const N: usize>(p: *mut c_float, a: [f32; N]) -> Result<(), VirtError> {
+unsafe fn write_arr<const N: usize>(p: *mut c_float, a: [f32; N]) -> R<()> {
     if p.is_null() {
-        return Err(VirtError::NullPointer);
+        return Err(ApiError::null());
     }
     // SAFETY: p points to N floats per the caller's contract.
     unsafe { std::ptr::copy_nonoverlapping(a.as_ptr(), p, N) };
     Ok(())
 }
 
+/// # Safety
+/// `p` is NULL or points to a writable `T`.
+unsafe fn put<T>(p: *mut T, v: T) -> R<()> {
+    // SAFETY: per the contract.
+    match unsafe { p.as_mut() } {
+        Some(p) => {
+            *p = v;
+            Ok(())
+        }
+        None => Err(ApiError::null()),
+    }
+}
+
+fn finite(name: &str, v: &[f32]) -> R<()> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(ApiError::new(
+            VIRT_E_INCORRECT_VALUE,
+            format!("{name}: NaN or infinite value"),
+        ))
+    }
+}
+
+fn hap_command(ty: c_int) -> R<CommandType> {
+    match ty {
+        COMMAND_TYPE_NONE => Ok(CommandType::None),
+        // 1 and 2: the values of hapticctrl's first header.
+        COMMAND_TYPE_IMPEDANCE | 1 => Ok(CommandType::Impedance),
+        COMMAND_TYPE_VIRTMECH | 2 => Ok(CommandType::VirtMech),
+        COMMAND_TYPE_ARTICULAR | COMMAND_TYPE_ARTICULAR_IMPEDANCE => {
+            Err(ApiError::not_implemented(
+                "articular command types (the controller has no joint-space mode)",
+            ))
+        }
+        t => Err(ApiError::new(
+            VIRT_E_INCORRECT_VALUE,
+            format!("command type {t}"),
+        )),
+    }
+}
+
+fn haption_command(t: CommandType) -> c_int {
+    match t {
+        CommandType::None => COMMAND_TYPE_NONE,
+        CommandType::Impedance => COMMAND_TYPE_IMPEDANCE,
+        CommandType::VirtMech => COMMAND_TYPE_VIRTMECH,
+    }
+}
+
+// ---- session ----------------------------------------------------------------
+
 /// Open a session with the controller at `"host#port"`. NULL on error.
 ///
 /// # Safety
 /// `name` is NULL or a NUL-terminated string.
 #[no_mangle]
-pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut VirtContextS {
+pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut c_void {
     if name.is_null() {
-        set_error(&VirtError::NullPointer);
+        set_error(&ApiError::new(VIRT_E_SYNTAX_ERROR, "null address"));
         return std::ptr::null_mut();
     }
     // SAFETY: NUL-terminated per the contract.
     let s = match unsafe { CStr::from_ptr(name) }.to_str() {
         Ok(s) => s,
         Err(_) => {
-            set_error(&VirtError::InvalidAddress("not UTF-8".into()));
+            set_error(&VirtError::InvalidAddress("not UTF-8".into()).into());
             return std::ptr::null_mut();
         }
     };
     match VirtContext::open(s) {
         Ok(vc) => {
             clear_error();
-            Box::into_raw(Box::new(VirtContextS { vc }))
+            let timeout_s = vc.options().reply_timeout.as_secs_f32() * vc.options().attempts as f32;
+            let b = Box::new(VirtContextS {
+                vc: Mutex::new(vc),
+                st: Mutex::new(ApiState {
+                    timeout_s,
+                    ..Default::default()
+                }),
+                periodic_loop: Mutex::new(None),
+                recorder: Mutex::new(None),
+                overrun_latched: AtomicBool::new(false),
+                overruns: AtomicU32::new(0),
+            });
+            Box::into_raw(b) as *mut c_void
         }
         Err(e) => {
-            set_error(&e);
+            set_error(&e.into());
             std::ptr::null_mut()
         }
     }
 }
 
-/// Close the session and free the context (the pointer becomes invalid).
+/// Stop the callback loop and the recorder, close the session and free the
+/// context (the pointer becomes invalid).
+///
+/// Refused (`VIRT_E_CALL_TIME`) from the context's own periodic callback.
 ///
 /// # Safety
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
-pub unsafe extern "C" fn virtClose(vc: *mut VirtContextS) -> c_int {
+pub unsafe extern "C" fn virtClose(vc: *mut c_void) -> c_int {
     if vc.is_null() {
-        return status(Err(VirtError::NullPointer));
+        return status_of(Err(ApiError::new(VIRT_E_INVALID_CONTEXT, "null context")));
+    }
+    // From the context's own callback, freeing it would pull the loop's
+    // context from under it: refused.
+    // SAFETY: live pointer from Box::into_raw, per the contract.
+    let in_callback = unsafe { &*(vc as *const VirtContextS) }
+        .periodic_loop
+        .lock()
+        .map(|w| w.as_ref().map(|w| w.id) == Some(std::thread::current().id()))
+        .unwrap_or(false);
+    if in_callback {
+        return status_of(Err(ApiError::new(
+            VIRT_E_CALL_TIME,
+            "virtClose from the periodic callback: call virtStopLoop there, virtClose after",
+        )));
     }
     // SAFETY: live pointer from Box::into_raw, per the contract.
-    let mut b = unsafe { Box::from_raw(vc) };
-    status(b.vc.close())
-}
-
-macro_rules! with_ctx {
-    ($vc:expr, |$c:ident| $body:expr) => {{
-        // SAFETY: per the function's contract.
-        let r = match unsafe { ctx($vc) } {
-            Ok($c) => $body,
-            Err(e) => Err(e),
-        };
-        status(r)
-    }};
+    let b = unsafe { Box::from_raw(vc as *mut VirtContextS) };
+    b.stop_workers();
+    let r = b.session().close();
+    status_of(r.map_err(ApiError::from))
 }
 
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// Each pointer is NULL or writable.
 #[no_mangle]
-pub unsafe extern "C" fn virtSetTimeStep(vc: *mut VirtContextS, step: c_float) -> c_int {
-    with_ctx!(vc, |c| c.set_time_step(step))
+pub unsafe extern "C" fn virtAPIVersion(major: *mut c_int, minor: *mut c_int) -> c_int {
+    // SAFETY: per the contract.
+    status_of(unsafe { put(major, API_VERSION.0).and_then(|_| put(minor, API_VERSION.1)) })
 }
 
-/// 0 all, 1 translations, 2 none, 3/4 with force-feedback inhibition.
+/// The controller's protocol version (major) and 0.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// `vc` is NULL or live; each pointer is NULL or writable.
 #[no_mangle]
-pub unsafe extern "C" fn virtSetIndexingMode(vc: *mut VirtContextS, mode: c_ushort) -> c_int {
-    with_ctx!(vc, |c| match IndexingMode::from_u32(mode as u32) {
-        Some(m) => c.set_indexing_mode(m),
-        None => Err(VirtError::InvalidArgument(format!("indexing mode {mode}"))),
-    })
-}
-
-/// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
-#[no_mangle]
-pub unsafe extern "C" fn virtSetForceFactor(vc: *mut VirtContextS, k: c_float) -> c_int {
-    with_ctx!(vc, |c| c.set_force_factor(k))
-}
-
-/// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
-#[no_mangle]
-pub unsafe extern "C" fn virtSetSpeedFactor(vc: *mut VirtContextS, k: c_float) -> c_int {
-    with_ctx!(vc, |c| c.set_speed_factor(k))
-}
-
-/// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
-#[no_mangle]
-pub unsafe extern "C" fn virtSetBaseFrame(vc: *mut VirtContextS, pos: *const c_float) -> c_int {
-    with_ctx!(vc, |c| unsafe { read_arr::<7>(pos) }
-        .and_then(|p| c.set_base_frame(&p)))
-}
-
-/// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
-#[no_mangle]
-pub unsafe extern "C" fn virtSetObservationFrame(
-    vc: *mut VirtContextS,
-    pos: *const c_float,
+pub unsafe extern "C" fn virtGetControlerVersion(
+    vc: *mut c_void,
+    major: *mut c_int,
+    minor: *mut c_int,
 ) -> c_int {
-    with_ctx!(vc, |c| unsafe { read_arr::<7>(pos) }
-        .and_then(|p| c.set_observation_frame(&p)))
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |_| {
+            put(major, hap_core::protocol::VERSION as c_int)?;
+            put(minor, 0)
+        })
+    }
 }
 
-/// 0 none, 1 impedance, 2 virtual mechanism.
+/// Device type `0x4843` ("HC") and the session id as serial number.
+///
+/// # Safety
+/// `vc` is NULL or live; each pointer is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetDeviceID(
+    vc: *mut c_void,
+    device_type: *mut c_int,
+    serial: *mut c_int,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let id = c.session().session_id();
+            put(device_type, DEVICE_TYPE)?;
+            put(serial, id as c_int)
+        })
+    }
+}
+
+/// Code of the last error of the calling thread (0: none). `vc` may be NULL
+/// (needed after a failed virtOpen).
+#[no_mangle]
+pub extern "C" fn virtGetErrorCode(_vc: *mut c_void) -> c_int {
+    LAST.with(|l| l.borrow().0)
+}
+
+/// The calling thread's last error code in `*error`.
+///
+/// # Safety
+/// `error` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetError(_vc: *mut c_void, error: *mut c_int) -> c_int {
+    let code = LAST.with(|l| l.borrow().0);
+    // SAFETY: per the contract.
+    match unsafe { error.as_mut() } {
+        Some(p) => {
+            *p = code;
+            0
+        }
+        None => -1,
+    }
+}
+
+/// Message for `code`: the detailed message of the calling thread's last
+/// error if it has that code, else a generic one. The pointer stays valid
+/// until the thread's next virt* call; the caller must not write to it.
+#[no_mangle]
+pub extern "C" fn virtGetErrorMessage(code: c_int) -> *mut c_char {
+    LAST.with(|l| {
+        let l = l.borrow();
+        if l.0 == code && code != 0 && !l.1.as_bytes().is_empty() {
+            l.1.as_ptr() as *mut c_char
+        } else {
+            generic(code).as_ptr() as *mut c_char
+        }
+    })
+}
+
+fn generic(code: c_int) -> &'static CStr {
+    match code {
+        0 => c"no error",
+        1 => c"out of memory",
+        2 => c"communication failure with the controller",
+        3 => c"invalid context",
+        4 => c"file not found",
+        5 => c"wrong format",
+        6 => c"time-out: no reply from the controller",
+        7 => c"function not implemented by hapticctrl",
+        8 => c"variable not available (no answer from the controller yet)",
+        9 => c"incorrect value",
+        10 => c"syntax error (address: \"host#port\" or \"host\")",
+        11 => c"hardware error",
+        12 => c"position discontinuity",
+        13 => c"VirtuoseAPI library not found",
+        14 => c"no periodic function set (virtSetPeriodicFunction)",
+        15 => c"performance counter error",
+        16 => c"major/minor version error",
+        17 => c"wrong mode for this request",
+        18 => c"mode not supported",
+        19 => c"call time error",
+        20 => c"incompatible version",
+        21 => c"incorrect virtual-mechanism type",
+        22 => c"already called",
+        _ => c"unknown error code",
+    }
+}
+
+/// Time-out of the requests and of the first answer, s (> 0).
 ///
 /// # Safety
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
-pub unsafe extern "C" fn virtSetCommandType(vc: *mut VirtContextS, ty: c_ushort) -> c_int {
-    with_ctx!(vc, |c| match CommandType::from_u32(ty as u32) {
-        Some(t) => c.set_command_type(t),
-        None => Err(VirtError::InvalidArgument(format!("command type {ty}"))),
-    })
+pub unsafe extern "C" fn virtSetTimeoutValue(vc: *mut c_void, t: c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            if !(t > 0.0 && t.is_finite() && t <= 3600.0) {
+                return Err(ApiError::new(
+                    VIRT_E_INCORRECT_VALUE,
+                    format!("time-out value {t} not in (0, 3600] s"),
+                ));
+            }
+            {
+                let mut s = c.session();
+                let mut o = s.options();
+                let attempts = o.attempts.max(1);
+                o.reply_timeout = Duration::from_secs_f32(t / attempts as f32);
+                s.set_options(o);
+            }
+            c.state().timeout_s = t;
+            Ok(())
+        })
+    }
 }
+
+/// # Safety
+/// `vc` is NULL or live; `t` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetTimeoutValue(vc: *mut c_void, t: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(t, c.state().timeout_s)) }
+}
+
+/// Stored; hapticctrl prints no debug output.
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetDebugFlags(vc: *mut c_void, flag: c_ushort) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            c.state().debug_flags = flag;
+            Ok(())
+        })
+    }
+}
+
+/// The file the trajectory recorder writes (virtTrajRecordStart).
+///
+/// # Safety
+/// `vc` is NULL or live; `name` is NULL or a NUL-terminated string.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetOutputFile(vc: *mut c_void, name: *mut c_char) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            if name.is_null() {
+                return Err(ApiError::null());
+            }
+            let s = CStr::from_ptr(name)
+                .to_str()
+                .map_err(|_| ApiError::new(VIRT_E_INCORRECT_VALUE, "file name not UTF-8"))?;
+            if s.is_empty() {
+                return Err(ApiError::new(VIRT_E_INCORRECT_VALUE, "empty file name"));
+            }
+            c.state().output_file = Some(PathBuf::from(s));
+            Ok(())
+        })
+    }
+}
+
+extern "C" {
+    fn fputs(s: *const c_char, stream: *mut c_void) -> c_int;
+    fn fflush(stream: *mut c_void) -> c_int;
+}
+
+/// Write the arm's status (power, dead-man, emergency stop, alarms, bounds)
+/// to a C `FILE *`.
+///
+/// # Safety
+/// `vc` is NULL or live; `file` is NULL or an open `FILE *`.
+#[no_mangle]
+pub unsafe extern "C" fn virtDisplayHardwareStatus(vc: *mut c_void, file: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            if file.is_null() {
+                return Err(ApiError::null());
+            }
+            let st = c.read(|v| v.get_status())?;
+            let al = c.read(|v| v.get_alarm())?;
+            let b = c.joints().map(|q| kin::bounds(&q)).unwrap_or(0);
+            let text = format!(
+                "hapticctrl arm: power {}, motors {}, dead-man {}, emergency stop {}, \
+                 status {st:#x}, alarms {al:#x}, bounds {b:#x}\n",
+                on(st & status::POWER_ON),
+                on(st & status::MOTORS_ENABLED),
+                on(st & status::DEAD_MAN),
+                if st & status::EMERGENCY_STOP != 0 {
+                    "pressed"
+                } else {
+                    "released"
+                },
+            );
+            let cs = CString::new(text).unwrap_or_default();
+            // SAFETY: file is an open FILE * per the contract.
+            if fputs(cs.as_ptr(), file) < 0 {
+                return Err(ApiError::new(
+                    VIRT_E_FILE_NOT_FOUND,
+                    "cannot write the file",
+                ));
+            }
+            fflush(file);
+            Ok(())
+        })
+    }
+}
+
+fn on(bit: u32) -> &'static str {
+    if bit != 0 {
+        "on"
+    } else {
+        "off"
+    }
+}
+
+// ---- configuration ------------------------------------------------------------
+
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetTimeStep(vc: *mut c_void, step: c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            c.session().set_time_step(step)?;
+            c.state().time_step = step;
+            Ok(())
+        })
+    }
+}
+
+/// # Safety
+/// `vc` is NULL or live; `step` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetTimeStep(vc: *mut c_void, step: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(step, c.state().time_step)) }
+}
+
+/// 0 none, 3 impedance (the application sends forces), 5 virtual mechanism
+/// (the application sends positions); 1 and 2 are accepted for 3 and 5.
+/// 6 and 7 (articular): VIRT_E_NOT_IMPLEMENTED.
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetCommandType(vc: *mut c_void, ty: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let t = hap_command(ty)?;
+            let enabled = c.state().force_feedback;
+            if enabled {
+                c.session().set_command_type(t)?;
+            }
+            let mut st = c.state();
+            st.command = haption_command(t);
+            st.force_cmd = [0.0; 6];
+            Ok(())
+        })
+    }
+}
+
+/// # Safety
+/// `vc` is NULL or live; `ty` is NULL or points to a writable VirtCommandType.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetCommandType(vc: *mut c_void, ty: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(ty, c.state().command)) }
+}
+
+/// 0 all, 1 translations, 2 none, 3/4 with force-feedback inhibition;
+/// 6 and 7 (rotations only): VIRT_E_NOT_IMPLEMENTED.
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetIndexingMode(vc: *mut c_void, mode: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let m = match mode {
+                6 | 7 => {
+                    return Err(ApiError::not_implemented(
+                        "rotation-only indexing (INDEXING_ROT*)",
+                    ))
+                }
+                m => u32::try_from(m)
+                    .ok()
+                    .and_then(IndexingMode::from_u32)
+                    .ok_or_else(|| {
+                        ApiError::new(VIRT_E_INCORRECT_VALUE, format!("indexing mode {m}"))
+                    })?,
+            };
+            c.session().set_indexing_mode(m)?;
+            c.state().indexing = mode;
+            Ok(())
+        })
+    }
+}
+
+/// # Safety
+/// `vc` is NULL or live; `mode` is NULL or points to a writable VirtIndexingType.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetIndexingMode(vc: *mut c_void, mode: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(mode, c.state().indexing)) }
+}
+
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetForceFactor(vc: *mut c_void, k: c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            c.session().set_force_factor(k)?;
+            c.state().frames.force_factor = k as f64;
+            Ok(())
+        })
+    }
+}
+
+/// # Safety
+/// `vc` is NULL or live; `k` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetForceFactor(vc: *mut c_void, k: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(k, c.state().frames.force_factor as f32)) }
+}
+
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetSpeedFactor(vc: *mut c_void, k: c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            c.session().set_speed_factor(k)?;
+            c.state().frames.speed_factor = k as f64;
+            Ok(())
+        })
+    }
+}
+
+/// # Safety
+/// `vc` is NULL or live; `k` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetSpeedFactor(vc: *mut c_void, k: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(k, c.state().frames.speed_factor as f32)) }
+}
+
+fn normalized(p: [f32; 7]) -> [f32; 7] {
+    let n = (p[3] as f64)
+        .hypot(p[4] as f64)
+        .hypot((p[5] as f64).hypot(p[6] as f64));
+    let mut out = p;
+    if n > 1e-6 {
+        for v in &mut out[3..7] {
+            *v = (*v as f64 / n) as f32;
+        }
+    }
+    out
+}
+
+/// # Safety
+/// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetBaseFrame(vc: *mut c_void, pos: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let p = read_arr::<7>(pos)?;
+            c.session().set_base_frame(&p)?;
+            c.state().frames.base = normalized(p);
+            Ok(())
+        })
+    }
+}
+
+/// # Safety
+/// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetBaseFrame(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| write_arr(pos, c.state().frames.base)) }
+}
+
+/// # Safety
+/// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetObservationFrame(vc: *mut c_void, pos: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let p = read_arr::<7>(pos)?;
+            c.session().set_observation_frame(&p)?;
+            c.state().observation = normalized(p);
+            Ok(())
+        })
+    }
+}
+
+/// # Safety
+/// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetObservationFrame(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| write_arr(pos, c.state().observation)) }
+}
+
+/// 6 joints.
+///
+/// # Safety
+/// `vc` is NULL or live; `n` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetNbAxes(vc: *mut c_void, n: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |_| put(n, kin::NB_AXES as c_int)) }
+}
+
+// ---- power, safety, buttons -------------------------------------------------------
+
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetPowerOn(vc: *mut c_void, power: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| Ok(c.session().set_power_on(power != 0)?)) }
+}
+
+/// # Safety
+/// `vc` is NULL or live; `power` is NULL or points to a writable int.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetPowerOn(vc: *mut c_void, power: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(power, c.read(|v| v.get_power_on())? as c_int)) }
+}
+
+/// 1 while the user holds the handle.
+///
+/// # Safety
+/// `vc` is NULL or live; `dead_man` is NULL or points to a writable int.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetDeadMan(vc: *mut c_void, dead_man: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            put(dead_man, c.read(|v| v.get_dead_man())? as c_int)
+        })
+    }
+}
+
+/// VirtuoseAPI's meaning: 1 when the system is operational (emergency stop
+/// released), 0 when the emergency stop is pressed.
+///
+/// # Safety
+/// `vc` is NULL or live; `estop` is NULL or points to a writable int.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetEmergencyStop(vc: *mut c_void, estop: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let pressed = c.read(|v| v.get_emergency_stop())?;
+            put(estop, (!pressed) as c_int)
+        })
+    }
+}
+
+/// hapticctrl's alarm bits (`hap_core::vp::alarm`, bits 0–5) plus
+/// VirtuoseAPI's: `VIRT_ALARM_SATURATE` when a motor torque was saturated,
+/// `VIRT_ALARM_CALLBACK_OVERRUN` when the periodic callback overran since
+/// the last read (cleared by this read).
+///
+/// # Safety
+/// `vc` is NULL or live; `alarm` is NULL or points to a writable unsigned int.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetAlarm(vc: *mut c_void, alarm_out: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let mut a = c.read(|v| v.get_alarm())?;
+            if a & alarm::TORQUE_SATURATED != 0 {
+                a |= VIRT_ALARM_SATURATE;
+            }
+            if c.overrun_latched.load(Ordering::SeqCst) {
+                a |= VIRT_ALARM_CALLBACK_OVERRUN;
+            }
+            put(alarm_out, a)?;
+            c.overrun_latched.store(false, Ordering::SeqCst);
+            Ok(())
+        })
+    }
+}
+
+/// `VIRT_BREAKDOWN_MOTOR_1..6` all set while the controller's fail-safe is
+/// engaged (it cuts every motor), 0 otherwise.
+///
+/// # Safety
+/// `vc` is NULL or live; `error` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetFailure(vc: *mut c_void, error: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let a = c.read(|v| v.get_alarm())?;
+            put(error, if a & alarm::FAIL_SAFE != 0 { 0x3f } else { 0 })
+        })
+    }
+}
+
+/// `VIRT_BOUND_*` bits from the joint angles and the simulator's joint
+/// limits (`hap_core::arm::Q_MIN/Q_MAX`, margin 0.02 rad).
+///
+/// # Safety
+/// `vc` is NULL or live; `bounds` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtIsInBounds(vc: *mut c_void, bounds: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(bounds, kin::bounds(&c.joints()?))) }
+}
+
+fn button_bit(n: c_int) -> R<u32> {
+    match n {
+        0 => Ok(status::BUTTON_1),
+        1 => Ok(status::BUTTON_2),
+        n => Err(ApiError::new(
+            VIRT_E_INCORRECT_VALUE,
+            format!("button {n} (the handle has buttons 0 and 1)"),
+        )),
+    }
+}
+
+/// Button 0 (indexing) or 1: 1 while pressed.
+///
+/// # Safety
+/// `vc` is NULL or live; `state` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetButton(vc: *mut c_void, n: c_int, state: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let bit = button_bit(n)?;
+            let s = c.read(|v| v.get_status())?;
+            put(state, (s & bit != 0) as c_int)
+        })
+    }
+}
+
+/// Block until button `n` is pressed. Fails with VIRT_E_TIME_OUT if the
+/// controller stops answering for the time-out value.
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtWaitPressButton(vc: *mut c_void, n: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let bit = button_bit(n)?;
+            let timeout = Duration::from_secs_f32(c.state().timeout_s);
+            loop {
+                let s = c.read(|v| v.get_status())?;
+                if s & bit != 0 {
+                    return Ok(());
+                }
+                // Wait on the session without holding its lock for long.
+                let got = {
+                    let deadline = Instant::now() + timeout;
+                    let mut got = false;
+                    while Instant::now() < deadline {
+                        if c.session().wait_answer(Duration::from_millis(20)) {
+                            got = true;
+                            break;
+                        }
+                    }
+                    got
+                };
+                if !got {
+                    return Err(ApiError::new(
+                        VIRT_E_TIME_OUT,
+                        "controller silent while waiting for the button",
+                    ));
+                }
+            }
+        })
+    }
+}
+
+// ---- virtual object and cartesian streams --------------------------------------------
 
 /// Attach a virtual object: mass (kg) and `float[3]` principal inertia.
 ///
@@ -198,29 +1144,92 @@ pub unsafe extern "C" fn virtSetCommandType(vc: *mut VirtContextS, ty: c_ushort)
 /// `vc` is NULL or live; `mxmymz` is NULL or points to 3 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtAttachVO(
-    vc: *mut VirtContextS,
+    vc: *mut c_void,
     mass: c_float,
     mxmymz: *const c_float,
 ) -> c_int {
-    with_ctx!(vc, |c| unsafe { read_arr::<3>(mxmymz) }
-        .and_then(|i| c.attach_vo(mass, i)))
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let i = read_arr::<3>(mxmymz)?;
+            c.session().attach_vo(mass, i)?;
+            c.state().vo_mass = Some(mass);
+            Ok(())
+        })
+    }
+}
+
+/// Same as virtAttachVO (the controller has one virtual object).
+///
+/// # Safety
+/// `vc` is NULL or live; `mxmymz` is NULL or points to 3 floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtAttachVOAvatar(
+    vc: *mut c_void,
+    mass: c_float,
+    mxmymz: *const c_float,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { virtAttachVO(vc, mass, mxmymz) }
 }
 
 /// # Safety
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
-pub unsafe extern "C" fn virtDetachVO(vc: *mut VirtContextS) -> c_int {
-    with_ctx!(vc, |c| c.detach_vo())
+pub unsafe extern "C" fn virtDetachVO(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            c.session().detach_vo()?;
+            c.state().vo_mass = None;
+            Ok(())
+        })
+    }
 }
 
-/// Stream the virtual object's pose (sends one frame with the last speed).
+/// Same as virtDetachVO.
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtDetachVOAvatar(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { virtDetachVO(vc) }
+}
+
+/// Stream the virtual object's pose (one frame with the last speed); the
+/// force of virtAddForce, if any, is added to the coupling.
 ///
 /// # Safety
 /// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
 #[no_mangle]
-pub unsafe extern "C" fn virtSetPosition(vc: *mut VirtContextS, pos: *const c_float) -> c_int {
-    with_ctx!(vc, |c| unsafe { read_arr::<7>(pos) }
-        .and_then(|p| c.set_position(&p)))
+pub unsafe extern "C" fn virtSetPosition(vc: *mut c_void, pos: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let p = read_arr::<7>(pos)?;
+            finite("position", &p)?;
+            let (frames, added, sat, mass, ts) = {
+                let st = c.state();
+                (
+                    st.frames,
+                    st.added_force,
+                    st.saturation,
+                    st.vo_mass,
+                    st.time_step,
+                )
+            };
+            let mut vc = c.session();
+            let target = if added.iter().any(|v| *v != 0.0) {
+                let (k_lin, k_rot) = c.gains(&vc, mass, ts);
+                let w = kin::saturate(&added, sat.0, sat.1);
+                kin::force_setpoint(&frames, &normalized(p), &w, k_lin, k_rot)
+            } else {
+                p
+            };
+            Ok(vc.set_position(&target)?)
+        })
+    }
 }
 
 /// Set the virtual object's twist (sent with the next virtSetPosition).
@@ -228,107 +1237,581 @@ pub unsafe extern "C" fn virtSetPosition(vc: *mut VirtContextS, pos: *const c_fl
 /// # Safety
 /// `vc` is NULL or live; `speed` is NULL or points to 6 floats.
 #[no_mangle]
-pub unsafe extern "C" fn virtSetSpeed(vc: *mut VirtContextS, speed: *const c_float) -> c_int {
-    with_ctx!(vc, |c| unsafe { read_arr::<6>(speed) }
-        .and_then(|s| c.set_speed(&s)))
+pub unsafe extern "C" fn virtSetSpeed(vc: *mut c_void, speed: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| Ok(c.session().set_speed(&read_arr::<6>(speed)?)?)) }
 }
 
-/// Handle pose, `float[7]`.
+/// COMMAND_TYPE_IMPEDANCE: the wrench (world frame, N and N·m) the arm
+/// applies to the user's hand, saturated by virtSaturateTorque. Sent at
+/// once, or after the callback when called from the periodic loop.
+///
+/// # Safety
+/// `vc` is NULL or live; `force` is NULL or points to 6 floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetForce(vc: *mut c_void, force: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let f = read_arr::<6>(force)?;
+            finite("force", &f)?;
+            {
+                let mut st = c.state();
+                if st.command != COMMAND_TYPE_IMPEDANCE {
+                    return Err(ApiError::new(
+                        VIRT_E_WRONG_MODE,
+                        "virtSetForce needs COMMAND_TYPE_IMPEDANCE",
+                    ));
+                }
+                st.force_cmd = f;
+            }
+            if c.loop_running() {
+                Ok(())
+            } else {
+                c.stream_force()
+            }
+        })
+    }
+}
+
+/// A wrench added to the coupling in every command type (it replaces the
+/// previous one; zeros remove it).
+///
+/// # Safety
+/// `vc` is NULL or live; `force` is NULL or points to 6 floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtAddForce(vc: *mut c_void, force: *const c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let f = read_arr::<6>(force)?;
+            finite("force", &f)?;
+            let impedance = {
+                let mut st = c.state();
+                st.added_force = f;
+                st.command == COMMAND_TYPE_IMPEDANCE
+            };
+            if impedance && !c.loop_running() {
+                c.stream_force()
+            } else {
+                Ok(())
+            }
+        })
+    }
+}
+
+/// Limits of the norms of the force (N) and torque (N·m) sent by
+/// virtSetForce/virtAddForce (both > 0).
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtSaturateTorque(
+    vc: *mut c_void,
+    force: c_float,
+    torque: c_float,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            if !(force > 0.0 && torque > 0.0 && force.is_finite() && torque.is_finite()) {
+                return Err(ApiError::new(
+                    VIRT_E_INCORRECT_VALUE,
+                    format!("saturation {force} N, {torque} N.m: both must be > 0"),
+                ));
+            }
+            c.state().saturation = (force, torque);
+            Ok(())
+        })
+    }
+}
+
+/// 0: the controller uncouples the arm (command type NONE); 1: the command
+/// type set by virtSetCommandType again.
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtEnableForceFeedback(vc: *mut c_void, enable: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let cmd = c.state().command;
+            let t = if enable != 0 {
+                hap_command(cmd)?
+            } else {
+                CommandType::None
+            };
+            c.session().set_command_type(t)?;
+            c.state().force_feedback = enable != 0;
+            Ok(())
+        })
+    }
+}
+
+/// Handle pose, `float[7]`, world frame.
 ///
 /// # Safety
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
-pub unsafe extern "C" fn virtGetPosition(vc: *mut VirtContextS, pos: *mut c_float) -> c_int {
-    with_ctx!(vc, |c| c
-        .get_position()
-        .and_then(|p| unsafe { write_arr(pos, p) }))
+pub unsafe extern "C" fn virtGetPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| write_arr(pos, c.read(|v| v.get_position())?)) }
 }
 
-/// Handle twist, `float[6]`.
+/// The handle as the application sees it (indexing and factors applied):
+/// the same pose as virtGetPosition.
+///
+/// # Safety
+/// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetAvatarPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { virtGetPosition(vc, pos) }
+}
+
+/// Handle pose in the arm base frame, arm units.
+///
+/// # Safety
+/// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetPhysicalPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| write_arr(pos, c.physical_pose()?)) }
+}
+
+/// Handle twist, `float[6]`, world frame.
 ///
 /// # Safety
 /// `vc` is NULL or live; `speed` is NULL or points to 6 writable floats.
 #[no_mangle]
-pub unsafe extern "C" fn virtGetSpeed(vc: *mut VirtContextS, speed: *mut c_float) -> c_int {
-    with_ctx!(vc, |c| c
-        .get_speed()
-        .and_then(|s| unsafe { write_arr(speed, s) }))
+pub unsafe extern "C" fn virtGetSpeed(vc: *mut c_void, speed: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| write_arr(speed, c.read(|v| v.get_speed())?)) }
 }
 
-/// Wrench to apply to the virtual object, `float[6]`.
+/// Handle twist in the arm base frame, arm units.
+///
+/// # Safety
+/// `vc` is NULL or live; `speed` is NULL or points to 6 writable floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetPhysicalSpeed(vc: *mut c_void, speed: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let w = c.read(|v| v.get_speed())?;
+            let t = c.state().frames.physical_twist(&w);
+            write_arr(speed, t)
+        })
+    }
+}
+
+/// Coupling wrench to apply to the virtual object, `float[6]`.
 ///
 /// # Safety
 /// `vc` is NULL or live; `force` is NULL or points to 6 writable floats.
 #[no_mangle]
-pub unsafe extern "C" fn virtGetForce(vc: *mut VirtContextS, force: *mut c_float) -> c_int {
-    with_ctx!(vc, |c| c
-        .get_force()
-        .and_then(|f| unsafe { write_arr(force, f) }))
+pub unsafe extern "C" fn virtGetForce(vc: *mut c_void, force: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| write_arr(force, c.read(|v| v.get_force())?)) }
 }
 
+/// The controller's servo cycle counter of the last answer.
+///
 /// # Safety
-/// `p` is NULL or points to a writable int.
-unsafe fn put_int(p: *mut c_int, v: bool) -> Result<(), VirtError> {
-    // SAFETY: per the contract.
-    match unsafe { p.as_mut() } {
-        Some(p) => {
-            *p = v as c_int;
-            Ok(())
-        }
-        None => Err(VirtError::NullPointer),
+/// `vc` is NULL or live; `time` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetTimeLastUpdate(vc: *mut c_void, time: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(time, c.read(|v| v.get_cycle())?)) }
+}
+
+// ---- joint space --------------------------------------------------------------
+
+/// The 6 joint angles (rad), from the handle pose and the arm model.
+///
+/// # Safety
+/// `vc` is NULL or live; `pos` is NULL or points to 6 writable floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetArticularPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let q = c.joints()?;
+            write_arr(pos, q.map(|v| v as f32))
+        })
     }
 }
 
+/// The 6 joint speeds (rad/s), from the handle twist and the arm's Jacobian.
+///
 /// # Safety
-/// `vc` is NULL or live; `power` is NULL or points to a writable int.
+/// `vc` is NULL or live; `speed` is NULL or points to 6 writable floats.
 #[no_mangle]
-pub unsafe extern "C" fn virtGetPowerOn(vc: *mut VirtContextS, power: *mut c_int) -> c_int {
-    with_ctx!(vc, |c| c
-        .get_power_on()
-        .and_then(|v| unsafe { put_int(power, v) }))
+pub unsafe extern "C" fn virtGetArticularSpeed(vc: *mut c_void, speed: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let q = c.joints()?;
+            let w = c.read(|v| v.get_speed())?;
+            let t = c.state().frames.physical_twist(&w);
+            write_arr(speed, kin::joint_speeds(&q, &t).map(|v| v as f32))
+        })
+    }
 }
 
+// ---- periodic callback ----------------------------------------------------------
+
+/// Register `f(vc, arg)`, called every `*period` seconds by virtStartLoop.
+///
+/// # Safety
+/// `vc` is NULL or live; `period` is NULL or readable; `f` stays callable
+/// and `arg` valid until virtStopLoop/virtClose.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetPeriodicFunction(
+    vc: *mut c_void,
+    f: Option<PeriodicFn>,
+    period: *const c_float,
+    arg: *mut c_void,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let f = f.ok_or_else(ApiError::null)?;
+            let p = *period.as_ref().ok_or_else(ApiError::null)?;
+            if !(1e-4..=1.0).contains(&p) {
+                return Err(ApiError::new(
+                    VIRT_E_INCORRECT_VALUE,
+                    format!("period {p} not in [0.0001, 1] s"),
+                ));
+            }
+            if c.loop_running() {
+                return Err(ApiError::new(
+                    VIRT_E_ALREADY_CALLED,
+                    "the loop is running: virtStopLoop first",
+                ));
+            }
+            c.state().periodic = Some((f, arg as usize, p));
+            Ok(())
+        })
+    }
+}
+
+struct LoopArgs {
+    ctx: usize,
+    f: PeriodicFn,
+    arg: usize,
+    period: Duration,
+}
+
+/// The callback loop: absolute deadlines every period; after each call, in
+/// COMMAND_TYPE_IMPEDANCE, the force command is streamed. A call (with the
+/// streaming) that ends after the next deadline is an overrun: latched in
+/// `VIRT_ALARM_CALLBACK_OVERRUN`, counted, and the missed periods skipped.
+fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
+    // SAFETY: virtClose stops this thread before freeing the context.
+    let c = unsafe { &*(a.ctx as *const VirtContextS) };
+    let mut next = Instant::now() + a.period;
+    while !stop.load(Ordering::SeqCst) {
+        let now = Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+        }
+        if stop.load(Ordering::SeqCst) {
+            break;
+        }
+        // SAFETY: f and arg are the application's, valid per
+        // virtSetPeriodicFunction's contract.
+        unsafe { (a.f)(a.ctx as *mut c_void, a.arg as *mut c_void) };
+        if let Err(e) = c.stream_force() {
+            set_error(&e);
+        }
+        let end = Instant::now();
+        next += a.period;
+        if end > next {
+            c.overrun_latched.store(true, Ordering::SeqCst);
+            c.overruns.fetch_add(1, Ordering::SeqCst);
+            while next <= end {
+                next += a.period;
+            }
+        }
+    }
+}
+
+/// Start calling the periodic function.
+///
 /// # Safety
 /// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
-pub unsafe extern "C" fn virtSetPowerOn(vc: *mut VirtContextS, power: c_int) -> c_int {
-    with_ctx!(vc, |c| c.set_power_on(power != 0))
+pub unsafe extern "C" fn virtStartLoop(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let (f, arg, p) = c.state().periodic.ok_or_else(|| {
+                ApiError::new(
+                    VIRT_E_PERIODIC_FUNCTION,
+                    "no periodic function: call virtSetPeriodicFunction first",
+                )
+            })?;
+            let mut slot = lock(&c.periodic_loop);
+            if slot.as_ref().map(|w| w.running()).unwrap_or(false) {
+                return Err(ApiError::new(VIRT_E_ALREADY_CALLED, "the loop is running"));
+            }
+            if let Some(old) = slot.take() {
+                old.stop();
+            }
+            c.overruns.store(0, Ordering::SeqCst);
+            let stop = Arc::new(AtomicBool::new(false));
+            let args = LoopArgs {
+                ctx: c as *const VirtContextS as usize,
+                f,
+                arg,
+                period: Duration::from_secs_f32(p),
+            };
+            let s2 = stop.clone();
+            let h = std::thread::Builder::new()
+                .name("virt_loop".into())
+                .spawn(move || periodic_loop(args, s2))
+                .map_err(|e| ApiError::new(VIRT_E_PERIODIC_FUNCTION, e.to_string()))?;
+            let id = h.thread().id();
+            *slot = Some(Worker {
+                stop,
+                handle: Some(h),
+                id,
+            });
+            Ok(())
+        })
+    }
 }
 
-/// # Safety
-/// `vc` is NULL or live; `dead_man` is NULL or points to a writable int.
-#[no_mangle]
-pub unsafe extern "C" fn virtGetDeadMan(vc: *mut VirtContextS, dead_man: *mut c_int) -> c_int {
-    with_ctx!(vc, |c| c
-        .get_dead_man()
-        .and_then(|v| unsafe { put_int(dead_man, v) }))
-}
-
-/// # Safety
-/// `vc` is NULL or live; `estop` is NULL or points to a writable int.
-#[no_mangle]
-pub unsafe extern "C" fn virtGetEmergencyStop(vc: *mut VirtContextS, estop: *mut c_int) -> c_int {
-    with_ctx!(vc, |c| c
-        .get_emergency_stop()
-        .and_then(|v| unsafe { put_int(estop, v) }))
-}
-
-/// Alarm bits (hap_core::vp::alarm).
+/// Stop the loop: returns after the last call ended (at once when called
+/// from the callback itself, which then is the last).
 ///
 /// # Safety
-/// `vc` is NULL or live; `alarm` is NULL or points to a writable unsigned int.
+/// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
-pub unsafe extern "C" fn virtGetAlarm(vc: *mut VirtContextS, alarm: *mut c_uint) -> c_int {
-    with_ctx!(vc, |c| c.get_alarm().and_then(|a| {
-        match unsafe { alarm.as_mut() } {
-            Some(p) => {
-                *p = a;
+pub unsafe extern "C" fn virtStopLoop(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let w = lock(&c.periodic_loop).take();
+            match w {
+                Some(w) => {
+                    w.stop();
+                    Ok(())
+                }
+                None => Err(ApiError::new(
+                    VIRT_E_PERIODIC_FUNCTION,
+                    "the loop is not running",
+                )),
+            }
+        })
+    }
+}
+
+/// hapticctrl extension: overruns since virtStartLoop.
+///
+/// # Safety
+/// `vc` is NULL or live; `n` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetCallbackOverruns(vc: *mut c_void, n: *mut c_uint) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(n, c.overruns.load(Ordering::SeqCst))) }
+}
+
+// ---- trajectory recording ---------------------------------------------------------
+
+/// Sampling period of the recorder (s, > 0); `*record_time` receives the
+/// longest recording, s.
+///
+/// # Safety
+/// `vc` is NULL or live; `record_time` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtTrajSetSamplingTimeStep(
+    vc: *mut c_void,
+    step: c_float,
+    record_time: *mut c_uint,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            if !(step > 0.0 && step <= 10.0) {
+                return Err(ApiError::new(
+                    VIRT_E_INCORRECT_VALUE,
+                    format!("sampling step {step} not in (0, 10] s"),
+                ));
+            }
+            put(
+                record_time,
+                (TRAJ_MAX_SAMPLES as f64 * step as f64)
+                    .round()
+                    .min(u32::MAX as f64) as c_uint,
+            )?;
+            c.state().traj_step = step;
+            Ok(())
+        })
+    }
+}
+
+/// Record the handle pose every sampling step into the file of
+/// virtSetOutputFile: one line per sample, `t x y z qx qy qz qw cycle`
+/// (t in s from the start, world frame).
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtTrajRecordStart(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let (path, step) = {
+                let st = c.state();
+                (st.output_file.clone(), st.traj_step)
+            };
+            let path = path.ok_or_else(|| {
+                ApiError::new(
+                    VIRT_E_FILE_NOT_FOUND,
+                    "no output file: call virtSetOutputFile first",
+                )
+            })?;
+            let mut slot = lock(&c.recorder);
+            if slot.as_ref().map(|w| w.running()).unwrap_or(false) {
+                return Err(ApiError::new(VIRT_E_ALREADY_CALLED, "already recording"));
+            }
+            let file = std::fs::File::create(&path).map_err(|e| {
+                ApiError::new(VIRT_E_FILE_NOT_FOUND, format!("{}: {e}", path.display()))
+            })?;
+            let stop = Arc::new(AtomicBool::new(false));
+            let s2 = stop.clone();
+            let ctx_addr = c as *const VirtContextS as usize;
+            let period = Duration::from_secs_f32(step);
+            let h = std::thread::Builder::new()
+                .name("virt_traj".into())
+                .spawn(move || record(ctx_addr, file, period, s2))
+                .map_err(|e| ApiError::new(VIRT_E_OUT_OF_MEMORY, e.to_string()))?;
+            let id = h.thread().id();
+            *slot = Some(Worker {
+                stop,
+                handle: Some(h),
+                id,
+            });
+            Ok(())
+        })
+    }
+}
+
+fn record(ctx: usize, file: std::fs::File, period: Duration, stop: Arc<AtomicBool>) {
+    // SAFETY: virtClose / virtTrajRecordStop stop this thread first.
+    let c = unsafe { &*(ctx as *const VirtContextS) };
+    let mut out = std::io::BufWriter::new(file);
+    let t0 = Instant::now();
+    let mut next = t0;
+    let mut n: u64 = 0;
+    while !stop.load(Ordering::SeqCst) && n < TRAJ_MAX_SAMPLES {
+        let sample = {
+            let vc = c.session();
+            vc.get_position().and_then(|p| Ok((p, vc.get_cycle()?)))
+        };
+        if let Ok((p, cycle)) = sample {
+            let t = next.duration_since(t0).as_secs_f64();
+            if writeln!(
+                out,
+                "{t:.6} {} {} {} {} {} {} {} {cycle}",
+                p[0], p[1], p[2], p[3], p[4], p[5], p[6]
+            )
+            .is_err()
+            {
+                break;
+            }
+            n += 1;
+        }
+        // Next point of the sampling grid (late samples skip grid points).
+        next += period;
+        let now = Instant::now();
+        while next < now {
+            next += period;
+        }
+        std::thread::sleep(next - now);
+    }
+    let _ = out.flush();
+}
+
+/// Stop recording and close the file.
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtTrajRecordStop(vc: *mut c_void) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| match lock(&c.recorder).take() {
+            Some(w) => {
+                w.stop();
                 Ok(())
             }
-            None => Err(VirtError::NullPointer),
-        }
-    }))
+            None => Err(ApiError::new(VIRT_E_WRONG_MODE, "not recording")),
+        })
+    }
 }
+
+// ---- conversions ----------------------------------------------------------------
+
+/// `d` `float[7]` → `m` `float[16]` row-major homogeneous matrix
+/// (translation in m[3], m[7], m[11]).
+///
+/// # Safety
+/// `d` is NULL or points to 7 floats; `m` is NULL or to 16 writable floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtConvertDeplToHomogeneMatrix(
+    _vc: *mut c_void,
+    d: *const c_float,
+    m: *mut c_float,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    status_of(unsafe {
+        read_arr::<7>(d).and_then(|d| {
+            finite("displacement", &d)?;
+            write_arr(m, kin::pose_to_matrix(&d))
+        })
+    })
+}
+
+/// `m` `float[16]` row-major homogeneous matrix → `d` `float[7]`.
+///
+/// # Safety
+/// `d` is NULL or points to 7 writable floats; `m` is NULL or to 16 floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtConvertHomogeneMatrixToDepl(
+    _vc: *mut c_void,
+    d: *mut c_float,
+    m: *const c_float,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    status_of(unsafe {
+        read_arr::<16>(m).and_then(|m| {
+            finite("matrix", &m)?;
+            write_arr(d, kin::matrix_to_pose(&m))
+        })
+    })
+}
+
+/// Luma of an RGB colour: `0.299 r + 0.587 g + 0.114 b`.
+///
+/// # Safety
+/// `rgb` is NULL or points to 3 floats; `gray` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtConvertRGBToGrayscale(
+    _vc: *mut c_void,
+    rgb: *const c_float,
+    gray: *mut c_float,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    status_of(unsafe {
+        read_arr::<3>(rgb).and_then(|c| put(gray, 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]))
+    })
+}
+
+// ---- hapticctrl extension ------------------------------------------------------------
 
 /// Link quality: answers per second, loss ratio (0..1), last RTT (ms).
 /// Any pointer may be NULL.
@@ -337,15 +1820,15 @@ pub unsafe extern "C" fn virtGetAlarm(vc: *mut VirtContextS, alarm: *mut c_uint)
 /// `vc` is NULL or live; each pointer is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetLinkStats(
-    vc: *mut VirtContextS,
+    vc: *mut c_void,
     rate_hz: *mut c_float,
     loss_ratio: *mut c_float,
     rtt_ms: *mut c_float,
 ) -> c_int {
-    with_ctx!(vc, |c| {
-        let s = c.link_stats();
-        // SAFETY: per the contract.
-        unsafe {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let s = c.session().link_stats();
             if let Some(p) = rate_hz.as_mut() {
                 *p = s.rate_hz as f32;
             }
@@ -355,46 +1838,80 @@ pub unsafe extern "C" fn virtGetLinkStats(
             if let Some(p) = rtt_ms.as_mut() {
                 *p = s.rtt_ms_last as f32;
             }
-        }
-        Ok(())
-    })
-}
-
-/// Code of the last error of the calling thread (0: none). `vc` may be NULL
-/// (needed after a failed virtOpen).
-#[no_mangle]
-pub extern "C" fn virtGetErrorCode(_vc: *mut VirtContextS) -> c_int {
-    LAST.with(|l| l.borrow().0)
-}
-
-/// Message for `code`: the detailed message of the calling thread's last
-/// error if it has that code, else a generic one. The pointer stays valid
-/// until the thread's next virt* call.
-#[no_mangle]
-pub extern "C" fn virtGetErrorMessage(code: c_int) -> *const c_char {
-    LAST.with(|l| {
-        let l = l.borrow();
-        if l.0 == code && code != 0 {
-            l.1.as_ptr()
-        } else {
-            generic(code).as_ptr()
-        }
-    })
-}
-
-fn generic(code: c_int) -> &'static CStr {
-    match code {
-        0 => c"no error",
-        1 => c"invalid address (expected \"host#port\" or \"host\")",
-        2 => c"socket error",
-        3 => c"timeout: no reply from the controller",
-        4 => c"request refused by the controller",
-        5 => c"invalid argument",
-        6 => c"no data received from the controller yet",
-        7 => c"context closed",
-        8 => c"null pointer or invalid context",
-        _ => c"unknown error code",
+            Ok(())
+        })
     }
+}
+
+// ---- what has no meaning on hapticctrl -------------------------------------------------
+
+macro_rules! not_implemented {
+    ($( $name:ident ( $($arg:ident : $ty:ty),* ) ; )*) => {
+        $(
+            /// Not implemented by hapticctrl: fails with VIRT_E_NOT_IMPLEMENTED.
+            #[no_mangle]
+            pub extern "C" fn $name(_vc: *mut c_void $(, $arg: $ty)*) -> c_int {
+                $( let _ = $arg; )*
+                status_of(Err(ApiError::not_implemented(stringify!($name))))
+            }
+        )*
+    };
+}
+
+not_implemented! {
+    virtDisableControlConnexion(disable: c_int);
+    virtSetObservationFrameSpeed(speed: *const c_float);
+    virtSetCatchFrame(frame: *const c_float);
+    virtGetCatchFrame(frame: *mut c_float);
+    virtForceShiftButton(force_shift: c_int);
+    virtIsInShiftPosition(shift: *mut c_int);
+    virtAttachQSVO(ks: *const c_float, bs: *const c_float);
+    virtGetSimulationStiffness(stiffness: *mut c_float);
+    virtGetSimulationDamping(damping: *mut c_float);
+    virtSetArticularPosition(pos: *const c_float);
+    virtSetArticularSpeed(speed: *const c_float);
+    virtSetArticularForce(force: *const c_float);
+    virtGetArticularPositionOfAdditionalAxe(pos: *mut c_float);
+    virtGetArticularSpeedOfAdditionalAxe(speed: *mut c_float);
+    virtSetArticularPositionOfAdditionalAxe(pos: *const c_float);
+    virtSetArticularSpeedOfAdditionalAxe(speed: *const c_float);
+    virtSetArticularForceOfAdditionalAxe(effort: *const c_float);
+    virtActiveSpeedControl(radius: c_float, speed_factor: c_float);
+    virtDeactiveSpeedControl();
+    virtActiveRotationSpeedControl(angle: c_float, speed_factor: c_float);
+    virtDeactiveRotationSpeedControl();
+    virtIsInSpeedControl(translation: *mut c_int, rotation: *mut c_int);
+    virtSetForceInSpeedControl(force: c_float);
+    virtSetTorqueInSpeedControl(torque: c_float);
+    virtGetCenterSphere(pos: *mut c_float);
+    virtGetAxisOfRotation(axe: *mut c_float);
+    virtSetTexture(position: *const c_float, intensity: *const c_float, reinit: c_int);
+    virtSetTextureForce(texture_force: *const c_float);
+    virtSetGripperCommandType(ty: c_int);
+    virtSetFingerTipSpeed(speed: *const c_float);
+    virtGetADC(line: c_int, adc: *mut c_float);
+    virtGetAnalogicInputs(inputs: *mut c_float);
+    virtGetTorInputs(tor_in: *mut c_uint);
+    virtOutputsSetting(outputs: c_uint);
+    virtSetPwmOutput(pwm: *const c_float);
+    virtGetMouseState(active: *mut c_int, left: *mut c_int, right: *mut c_int);
+    virtGetTrackball(x_move: *mut c_int, y_move: *mut c_int);
+    virtGetTrackballButton(active: *mut c_int, left: *mut c_int, middle: *mut c_int, right: *mut c_int);
+    virtVmActivate();
+    virtVmDeactivate();
+    virtVmSetType(ty: c_int);
+    virtVmSetBaseFrame(base: *const c_float);
+    virtVmGetBaseFrame(base: *mut c_float);
+    virtVmSetBaseFrameToCurrentFrame();
+    virtVmSetDefaultToCartesianPosition();
+    virtVmSetDefaultToTransparentMode();
+    virtVmSetRobotMode(on_off: c_int);
+    virtVmStartTrajSampling(nb_samples: c_uint);
+    virtVmGetTrajSamples(samples: *mut c_float);
+    virtVmWaitUpperBound();
+    virtVmLoadSpline(file_name: *const c_char);
+    virtVmSaveCurrentSpline(file_name: *const c_char);
+    virtVmDeleteSpline(file_name: *const c_char);
 }
 
 #[cfg(test)]
@@ -402,30 +1919,96 @@ mod tests {
     use super::*;
 
     #[test]
-    fn generic_messages_match_rust_ones() {
-        for code in 0..10 {
-            assert_eq!(
-                generic(code).to_str().unwrap(),
-                VirtError::code_message(code)
-            );
+    fn every_code_has_a_message() {
+        for code in 0..=22 {
+            assert_ne!(generic(code).to_str().unwrap(), "unknown error code");
         }
+        assert_eq!(generic(23).to_str().unwrap(), "unknown error code");
     }
 
     #[test]
     fn null_pointers_are_errors_not_crashes() {
+        // SAFETY: the pointers are as this function's `# Safety` requires.
         unsafe {
             assert!(virtOpen(std::ptr::null()).is_null());
-            assert_eq!(virtGetErrorCode(std::ptr::null_mut()), 8);
+            assert_eq!(virtGetErrorCode(std::ptr::null_mut()), VIRT_E_SYNTAX_ERROR);
             assert_eq!(virtSetTimeStep(std::ptr::null_mut(), 0.001), -1);
+            assert_eq!(
+                virtGetErrorCode(std::ptr::null_mut()),
+                VIRT_E_INVALID_CONTEXT
+            );
             assert_eq!(
                 virtGetPosition(std::ptr::null_mut(), std::ptr::null_mut()),
                 -1
             );
+            assert_eq!(virtStartLoop(std::ptr::null_mut()), -1);
+            assert_eq!(
+                virtAPIVersion(std::ptr::null_mut(), std::ptr::null_mut()),
+                -1
+            );
             let bad = c"no-such-host.invalid#x";
             assert!(virtOpen(bad.as_ptr()).is_null());
-            assert_eq!(virtGetErrorCode(std::ptr::null_mut()), 1);
-            let msg = CStr::from_ptr(virtGetErrorMessage(1)).to_str().unwrap();
+            assert_eq!(virtGetErrorCode(std::ptr::null_mut()), VIRT_E_SYNTAX_ERROR);
+            let msg = CStr::from_ptr(virtGetErrorMessage(VIRT_E_SYNTAX_ERROR))
+                .to_str()
+                .unwrap();
             assert!(msg.contains("bad port"), "{msg}");
+            let mut e = -1;
+            assert_eq!(virtGetError(std::ptr::null_mut(), &mut e), 0);
+            assert_eq!(e, VIRT_E_SYNTAX_ERROR);
         }
+    }
+
+    #[test]
+    fn not_implemented_functions_say_so() {
+        assert_eq!(virtVmActivate(std::ptr::null_mut()), -1);
+        assert_eq!(
+            virtGetErrorCode(std::ptr::null_mut()),
+            VIRT_E_NOT_IMPLEMENTED
+        );
+        // SAFETY: the pointers are as this function's `# Safety` requires.
+        let msg = unsafe { CStr::from_ptr(virtGetErrorMessage(VIRT_E_NOT_IMPLEMENTED)) };
+        assert!(msg.to_str().unwrap().contains("virtVmActivate"));
+    }
+
+    #[test]
+    fn conversions_work_without_a_context() {
+        let s = std::f32::consts::FRAC_1_SQRT_2;
+        let d = [0.1f32, 0.2, 0.3, 0.0, s, 0.0, s];
+        let mut m = [0f32; 16];
+        let mut back = [0f32; 7];
+        // SAFETY: the pointers are as this function's `# Safety` requires.
+        unsafe {
+            assert_eq!(
+                virtConvertDeplToHomogeneMatrix(std::ptr::null_mut(), d.as_ptr(), m.as_mut_ptr()),
+                0
+            );
+            assert_eq!(
+                virtConvertHomogeneMatrixToDepl(
+                    std::ptr::null_mut(),
+                    back.as_mut_ptr(),
+                    m.as_ptr()
+                ),
+                0
+            );
+        }
+        for i in 0..7 {
+            assert!((back[i] - d[i]).abs() < 1e-6, "{back:?}");
+        }
+        // 90° about y: z axis → x axis (m[2] = R[0][2] = 1).
+        assert!((m[2] - 1.0).abs() < 1e-6 && m[3] == 0.1);
+        let mut g = 0.0;
+        // SAFETY: the pointers are as this function's `# Safety` requires.
+        unsafe {
+            assert_eq!(
+                virtConvertRGBToGrayscale(
+                    std::ptr::null_mut(),
+                    [1.0f32, 1.0, 1.0].as_ptr(),
+                    &mut g
+                ),
+                0
+            );
+        }
+        assert!((g - 1.0).abs() < 1e-6);
     }
 }

@@ -30,6 +30,7 @@
 pub mod conv;
 pub mod fake_peer;
 pub mod ffi;
+pub mod kin;
 
 use std::collections::HashMap;
 use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
@@ -77,7 +78,8 @@ pub enum VirtError {
 }
 
 impl VirtError {
-    /// Stable integer code (C ABI).
+    /// Stable integer code of this crate (the C ABI reports VirtuoseAPI's
+    /// `VIRT_E_*` codes instead, see `ffi`).
     pub fn code(&self) -> i32 {
         match self {
             VirtError::InvalidAddress(_) => 1,
@@ -336,10 +338,17 @@ pub fn parse_address(s: &str) -> Result<SocketAddr> {
         return Err(VirtError::InvalidAddress(format!("{s}: port 0")));
     }
     let host = host.trim_start_matches('[').trim_end_matches(']');
-    (host, port)
+    // A name with several addresses ("localhost": ::1 and 127.0.0.1): the
+    // IPv4 one first, as VirtuoseAPI clients expect.
+    let addrs: Vec<SocketAddr> = (host, port)
         .to_socket_addrs()
         .map_err(|e| VirtError::InvalidAddress(format!("{s}: {e}")))?
-        .next()
+        .collect();
+    addrs
+        .iter()
+        .find(|a| a.is_ipv4())
+        .or(addrs.first())
+        .copied()
         .ok_or_else(|| VirtError::InvalidAddress(format!("{s}: no address")))
 }
 
@@ -458,6 +467,11 @@ impl VirtContext {
     /// Change timeouts and retries.
     pub fn set_options(&mut self, opts: Options) {
         self.opts = opts;
+    }
+
+    /// Timeouts and retries in use.
+    pub fn options(&self) -> Options {
+        self.opts
     }
 
     fn check_open(&self) -> Result<()> {
@@ -936,6 +950,7 @@ mod tests {
         assert_eq!(parse_address("127.0.0.1").unwrap().port(), 5000);
         assert_eq!(parse_address("127.0.0.1:6000").unwrap().port(), 6000);
         assert_eq!(parse_address("localhost#7").unwrap().port(), 7);
+        assert!(parse_address("localhost#7").unwrap().is_ipv4());
         assert!(parse_address("").is_err());
         assert!(parse_address("127.0.0.1#x").is_err());
         assert!(parse_address("127.0.0.1#70000").is_err());

@@ -1,0 +1,562 @@
+//! The VirtuoseAPI C ABI (`include/VirtuoseAPI.h`) against the fake
+//! controller: getters of the setters, impedance forces as coupling
+//! set-points, saturation, force-feedback switch, the periodic callback loop
+//! and its overrun alarm, physical and articular reads, bounds, trajectory
+//! recording and the functions that are not implemented.
+
+use std::ffi::{c_int, c_uint, c_void, CString};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::Duration;
+
+use hap_core::control::Gains;
+use hap_core::fixed::{Fx, Joints};
+use virtuose_api::fake_peer::{FakePeer, FakePeerConfig};
+use virtuose_api::ffi::*;
+
+fn peer(center: [f64; 3], amplitude: [f64; 3]) -> FakePeer {
+    FakePeer::start(FakePeerConfig {
+        center,
+        amplitude,
+        answer_every_period: true,
+        twist_every: 4,
+        ..Default::default()
+    })
+    .unwrap()
+}
+
+fn open(p: &FakePeer) -> *mut c_void {
+    let addr = CString::new(p.address()).unwrap();
+    // SAFETY: a NUL-terminated string.
+    let vc = unsafe { virtOpen(addr.as_ptr()) };
+    assert!(!vc.is_null(), "virtOpen failed: {}", virtGetErrorCode(vc));
+    vc
+}
+
+fn k_lin() -> f64 {
+    Gains::for_period(Fx::from_ratio(1000, 1_000_000))
+        .k_lin
+        .to_f64()
+}
+
+fn code() -> c_int {
+    virtGetErrorCode(std::ptr::null_mut())
+}
+
+#[test]
+fn getters_return_what_the_setters_set() {
+    let p = peer([0.4, 0.0, 0.3], [0.0; 3]);
+    let vc = open(&p);
+    let s = std::f32::consts::FRAC_1_SQRT_2;
+    let base = [0.1f32, 0.2, 0.3, 0.0, 0.0, s, s];
+    let obs = [1.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+    // SAFETY: vc is live; the arrays have the sizes the functions need.
+    unsafe {
+        assert_eq!(virtSetTimeStep(vc, 0.002), 0);
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_VIRTMECH), 0);
+        assert_eq!(virtSetIndexingMode(vc, 1), 0);
+        assert_eq!(virtSetForceFactor(vc, 0.5), 0);
+        assert_eq!(virtSetSpeedFactor(vc, 2.0), 0);
+        assert_eq!(virtSetBaseFrame(vc, base.as_ptr()), 0);
+        assert_eq!(virtSetObservationFrame(vc, obs.as_ptr()), 0);
+        assert_eq!(virtSetTimeoutValue(vc, 0.6), 0);
+        let (mut f, mut ty, mut im) = (0f32, 0, 0);
+        assert_eq!(virtGetTimeStep(vc, &mut f), 0);
+        assert_eq!(f, 0.002);
+        assert_eq!(virtGetCommandType(vc, &mut ty), 0);
+        assert_eq!(ty, COMMAND_TYPE_VIRTMECH);
+        assert_eq!(virtGetIndexingMode(vc, &mut im), 0);
+        assert_eq!(im, 1);
+        assert_eq!(virtGetForceFactor(vc, &mut f), 0);
+        assert_eq!(f, 0.5);
+        assert_eq!(virtGetSpeedFactor(vc, &mut f), 0);
+        assert_eq!(f, 2.0);
+        assert_eq!(virtGetTimeoutValue(vc, &mut f), 0);
+        assert_eq!(f, 0.6);
+        let mut got = [0f32; 7];
+        assert_eq!(virtGetBaseFrame(vc, got.as_mut_ptr()), 0);
+        assert_eq!(got, base);
+        assert_eq!(virtGetObservationFrame(vc, got.as_mut_ptr()), 0);
+        assert_eq!(got, obs);
+        // Rejected values leave the state as it was.
+        assert_eq!(virtSetCommandType(vc, 4), -1);
+        assert_eq!(code(), VIRT_E_INCORRECT_VALUE);
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_ARTICULAR), -1);
+        assert_eq!(code(), VIRT_E_NOT_IMPLEMENTED);
+        assert_eq!(virtSetIndexingMode(vc, 7), -1);
+        assert_eq!(code(), VIRT_E_NOT_IMPLEMENTED);
+        assert_eq!(virtGetCommandType(vc, &mut ty), 0);
+        assert_eq!(ty, COMMAND_TYPE_VIRTMECH);
+        assert_eq!(virtSetTimeoutValue(vc, -1.0), -1);
+        assert_eq!(code(), VIRT_E_INCORRECT_VALUE);
+        // Versions, axes, device id.
+        let (mut a, mut b) = (0, 0);
+        assert_eq!(virtAPIVersion(&mut a, &mut b), 0);
+        assert_eq!((a, b), (4, 4));
+        assert_eq!(virtGetControlerVersion(vc, &mut a, &mut b), 0);
+        assert_eq!((a, b), (1, 0));
+        assert_eq!(virtGetNbAxes(vc, &mut a), 0);
+        assert_eq!(a, 6);
+        assert_eq!(virtGetDeviceID(vc, &mut a, &mut b), 0);
+        assert_eq!(a, 0x4843);
+        assert!(b > 0, "session id {b}");
+        assert_eq!(virtClose(vc), 0);
+    }
+    assert_eq!(p.stats().command_type, Some(2)); // hapticctrl's VirtMech
+}
+
+#[test]
+fn physical_position_undoes_the_base_frame_and_speed_factor() {
+    // The fake reports the handle at `center` in the world frame.
+    let p = peer([0.5, 0.2, 0.3], [0.0; 3]);
+    let vc = open(&p);
+    let s = std::f32::consts::FRAC_1_SQRT_2;
+    // Base: 90° about z, at (0.1, 0, 0); speed factor 2.
+    let base = [0.1f32, 0.0, 0.0, 0.0, 0.0, s, s];
+    // SAFETY: vc is live; the arrays have the sizes the functions need.
+    unsafe {
+        assert_eq!(virtSetBaseFrame(vc, base.as_ptr()), 0);
+        assert_eq!(virtSetSpeedFactor(vc, 2.0), 0);
+        let mut world = [0f32; 7];
+        let mut phys = [0f32; 7];
+        let mut avatar = [0f32; 7];
+        assert_eq!(virtGetPosition(vc, world.as_mut_ptr()), 0);
+        assert_eq!(virtGetAvatarPosition(vc, avatar.as_mut_ptr()), 0);
+        assert_eq!(virtGetPhysicalPosition(vc, phys.as_mut_ptr()), 0);
+        assert_eq!(world, avatar);
+        assert!((world[0] - 0.5).abs() < 1e-6);
+        // world − base = (0.4, 0.2, 0); rotated by −90° about z: (0.2, −0.4, 0); / 2
+        let want = [0.1f32, -0.2, 0.15];
+        for i in 0..3 {
+            assert!((phys[i] - want[i]).abs() < 1e-5, "{phys:?}");
+        }
+        // orientation: base⁻¹ ⊗ identity = −90° about z
+        assert!(
+            (phys[5] + s).abs() < 1e-5 && (phys[6] - s).abs() < 1e-5,
+            "{phys:?}"
+        );
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+fn fk(q: &[f64; 6]) -> [f32; 7] {
+    let mut qj: Joints = [Fx::ZERO; 6];
+    for (d, s) in qj.iter_mut().zip(q.iter()) {
+        *d = Fx::from_f64(*s);
+    }
+    let k = hap_core::arm::kinematics(&qj);
+    let p = k.handle.position.to_f64();
+    let o = k.handle.orientation.to_f64();
+    [
+        p[0] as f32,
+        p[1] as f32,
+        p[2] as f32,
+        o[0] as f32,
+        o[1] as f32,
+        o[2] as f32,
+        o[3] as f32,
+    ]
+}
+
+#[test]
+fn articular_reads_and_bounds_follow_the_arm_model() {
+    // The fake's handle has the identity orientation: place it where the
+    // arm reaches with that orientation, and check the joints reproduce it.
+    let p = peer([0.6, 0.1, 0.35], [0.0; 3]);
+    let vc = open(&p);
+    // SAFETY: vc is live; the arrays have the sizes the functions need.
+    unsafe {
+        let mut q = [0f32; 20];
+        assert_eq!(virtGetArticularPosition(vc, q.as_mut_ptr()), 0);
+        // Six values written, nothing beyond (ViSP counts the non-zero ones).
+        assert!(q[6..].iter().all(|v| *v == 0.0), "{q:?}");
+        let qd: [f64; 6] = std::array::from_fn(|i| q[i] as f64);
+        let back = fk(&qd);
+        for (i, want) in [0.6f32, 0.1, 0.35].iter().enumerate() {
+            assert!((back[i] - want).abs() < 1e-3, "{q:?} → {back:?}");
+        }
+        assert!(back[6].abs() > 0.999, "{back:?}");
+        let mut b: c_uint = 99;
+        assert_eq!(virtIsInBounds(vc, &mut b), 0);
+        let lo_hi = (0..6).any(|i| {
+            let lo = hap_core::arm::Q_MIN[i].to_f64();
+            let hi = hap_core::arm::Q_MAX[i].to_f64();
+            qd[i] <= lo + 0.02 || qd[i] >= hi - 0.02
+        });
+        assert_eq!(b != 0, lo_hi, "bounds {b:#x} for {qd:?}");
+        let mut v = [0f32; 6];
+        assert_eq!(virtGetArticularSpeed(vc, v.as_mut_ptr()), 0);
+        assert!(v.iter().all(|x| x.is_finite()));
+        assert_eq!(virtClose(vc), 0);
+    }
+    // Out of reach: an error, not garbage.
+    let far = peer([3.0, 0.0, 0.0], [0.0; 3]);
+    let vc = open(&far);
+    // SAFETY: as above.
+    unsafe {
+        let mut q = [0f32; 6];
+        assert_eq!(virtGetArticularPosition(vc, q.as_mut_ptr()), -1);
+        assert_eq!(code(), VIRT_E_VARIABLE_NOT_AVAILABLE);
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+fn offset(p: &FakePeer, center: [f64; 3]) -> [f64; 3] {
+    let s = p.stats();
+    std::array::from_fn(|i| s.last_vo_pose[i] - center[i])
+}
+
+#[test]
+fn impedance_forces_become_coupling_setpoints() {
+    let c = [0.45, 0.05, 0.25];
+    let p = peer(c, [0.0; 3]);
+    let vc = open(&p);
+    let k = k_lin();
+    // SAFETY: vc is live; the arrays have the sizes the functions need.
+    unsafe {
+        let f = [3.0f32, 0.0, -1.5, 0.0, 0.0, 0.0];
+        // Not in impedance mode: refused.
+        assert_eq!(virtSetForce(vc, f.as_ptr()), -1);
+        assert_eq!(code(), VIRT_E_WRONG_MODE);
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        assert_eq!(virtSetPowerOn(vc, 1), 0);
+        assert_eq!(virtSetForce(vc, f.as_ptr()), 0);
+        std::thread::sleep(Duration::from_millis(50));
+        let o = offset(&p, c);
+        assert!((o[0] - 3.0 / k).abs() < 1e-6, "{o:?}, k {k}");
+        assert!((o[2] + 1.5 / k).abs() < 1e-6, "{o:?}");
+        // virtAddForce adds to it.
+        let a = [0.0f32, 1.0, 0.0, 0.0, 0.0, 0.0];
+        assert_eq!(virtAddForce(vc, a.as_ptr()), 0);
+        std::thread::sleep(Duration::from_millis(50));
+        let o = offset(&p, c);
+        assert!((o[1] - 1.0 / k).abs() < 1e-6, "{o:?}");
+        assert!((o[0] - 3.0 / k).abs() < 1e-6, "{o:?}");
+        // Saturation: the force sent has norm 1 N at most.
+        assert_eq!(virtSaturateTorque(vc, 1.0, 0.1), 0);
+        let big = [30.0f32, 40.0, 0.0, 0.0, 0.0, 0.0];
+        let zero = [0f32; 6];
+        assert_eq!(virtAddForce(vc, zero.as_ptr()), 0);
+        assert_eq!(virtSetForce(vc, big.as_ptr()), 0);
+        std::thread::sleep(Duration::from_millis(50));
+        let o = offset(&p, c);
+        let n = (o[0] * o[0] + o[1] * o[1] + o[2] * o[2]).sqrt();
+        assert!((n * k - 1.0).abs() < 1e-4, "{o:?}: {} N", n * k);
+        assert!((o[0] / o[1] - 0.75).abs() < 1e-3, "direction kept: {o:?}");
+        assert_eq!(virtSaturateTorque(vc, 0.0, 1.0), -1);
+        assert_eq!(code(), VIRT_E_INCORRECT_VALUE);
+        let nan = [f32::NAN, 0.0, 0.0, 0.0, 0.0, 0.0];
+        assert_eq!(virtSetForce(vc, nan.as_ptr()), -1);
+        assert_eq!(code(), VIRT_E_INCORRECT_VALUE);
+        // Force feedback off: the controller uncouples (command type none).
+        assert_eq!(virtEnableForceFeedback(vc, 0), 0);
+        assert_eq!(p.stats().command_type, Some(0));
+        let mut ty = 0;
+        assert_eq!(virtGetCommandType(vc, &mut ty), 0);
+        assert_eq!(ty, COMMAND_TYPE_IMPEDANCE);
+        assert_eq!(virtEnableForceFeedback(vc, 1), 0);
+        assert_eq!(p.stats().command_type, Some(1));
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+struct Counter {
+    vc: *mut c_void,
+    calls: AtomicU32,
+    errors: AtomicU32,
+    sleep_us: u64,
+    stop_after: u32,
+}
+
+unsafe extern "C" fn callback(vc: *mut c_void, arg: *mut c_void) {
+    // SAFETY: arg is the &Counter the test passed, alive while the loop runs.
+    let c = unsafe { &*(arg as *const Counter) };
+    assert_eq!(vc, c.vc);
+    let mut pos = [0f32; 7];
+    let mut speed = [0f32; 6];
+    let f = [0.0f32, 0.0, 2.0, 0.0, 0.0, 0.0];
+    // SAFETY: vc is live; arrays sized as needed.
+    let r = unsafe {
+        virtGetPhysicalPosition(vc, pos.as_mut_ptr())
+            | virtGetPhysicalSpeed(vc, speed.as_mut_ptr())
+            | virtSetForce(vc, f.as_ptr())
+    };
+    if r != 0 {
+        c.errors.fetch_add(1, Ordering::SeqCst);
+    }
+    let n = c.calls.fetch_add(1, Ordering::SeqCst) + 1;
+    if c.sleep_us > 0 {
+        std::thread::sleep(Duration::from_micros(c.sleep_us));
+    }
+    if c.stop_after > 0 && n == c.stop_after {
+        // SAFETY: vc is live; closing from the callback is refused,
+        // stopping is allowed.
+        unsafe {
+            assert_eq!(virtClose(vc), -1);
+            assert_eq!(virtGetErrorCode(vc), 19); // VIRT_E_CALL_TIME
+            assert_eq!(virtStopLoop(vc), 0);
+        }
+    }
+}
+
+#[test]
+fn periodic_loop_calls_back_streams_and_stops() {
+    let c = [0.45, 0.05, 0.25];
+    let p = peer(c, [0.0; 3]);
+    let vc = open(&p);
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 0,
+        stop_after: 0,
+    };
+    let period = 0.002f32;
+    // SAFETY: vc is live; counter outlives the loop (stopped below).
+    unsafe {
+        assert_eq!(virtStartLoop(vc), -1);
+        assert_eq!(code(), VIRT_E_PERIODIC_FUNCTION);
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        let tiny = 1e-6f32;
+        let arg = &counter as *const Counter as *mut c_void;
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &tiny, arg), -1);
+        assert_eq!(code(), VIRT_E_INCORRECT_VALUE);
+        assert_eq!(virtSetPeriodicFunction(vc, None, &period, arg), -1);
+        let arg = &counter as *const Counter as *mut c_void;
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        let before = p.stats().frames.get("vpr_stream").copied().unwrap_or(0);
+        assert_eq!(virtStartLoop(vc), 0);
+        assert_eq!(virtStartLoop(vc), -1);
+        assert_eq!(code(), VIRT_E_ALREADY_CALLED);
+        std::thread::sleep(Duration::from_millis(300));
+        assert_eq!(virtStopLoop(vc), 0);
+        let calls = counter.calls.load(Ordering::SeqCst);
+        assert!(calls >= 10, "{calls} calls in 300 ms at 2 ms");
+        assert_eq!(counter.errors.load(Ordering::SeqCst), 0);
+        // Once stopped, no more calls.
+        std::thread::sleep(Duration::from_millis(50));
+        assert_eq!(counter.calls.load(Ordering::SeqCst), calls);
+        assert_eq!(virtStopLoop(vc), -1);
+        // One set-point per call, carrying the callback's force.
+        let sent = p.stats().frames.get("vpr_stream").copied().unwrap_or(0) - before;
+        assert!(sent >= calls as u64, "{sent} frames for {calls} calls");
+        let o = offset(&p, c);
+        assert!((o[2] - 2.0 / k_lin()).abs() < 1e-6, "{o:?}");
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn a_callback_that_overruns_raises_the_alarm() {
+    let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    // A callback that takes 5 periods, stopping itself after 10 calls.
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 5000,
+        stop_after: 10,
+    };
+    let period = 0.001f32;
+    // SAFETY: vc is live; counter outlives the loop.
+    unsafe {
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        let arg = &counter as *const Counter as *mut c_void;
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        let mut a: c_uint = 0;
+        assert_eq!(virtGetAlarm(vc, &mut a), 0);
+        assert_eq!(a & VIRT_ALARM_CALLBACK_OVERRUN, 0);
+        assert_eq!(virtStartLoop(vc), 0);
+        for _ in 0..200 {
+            if counter.calls.load(Ordering::SeqCst) >= 10 {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+        assert_eq!(counter.calls.load(Ordering::SeqCst), 10, "stopped itself");
+        let mut n: c_uint = 0;
+        assert_eq!(virtGetCallbackOverruns(vc, &mut n), 0);
+        assert!(n >= 9, "{n} overruns");
+        assert_eq!(virtGetAlarm(vc, &mut a), 0);
+        assert_ne!(a & VIRT_ALARM_CALLBACK_OVERRUN, 0, "{a:#x}");
+        // Latched until read.
+        assert_eq!(virtGetAlarm(vc, &mut a), 0);
+        assert_eq!(a & VIRT_ALARM_CALLBACK_OVERRUN, 0, "{a:#x}");
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn close_stops_a_running_loop() {
+    let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    let counter = Box::new(Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 0,
+        stop_after: 0,
+    });
+    let period = 0.001f32;
+    // SAFETY: vc is live; counter outlives the loop (virtClose joins it).
+    unsafe {
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        let arg = &*counter as *const Counter as *mut c_void;
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        assert_eq!(virtStartLoop(vc), 0);
+        std::thread::sleep(Duration::from_millis(50));
+        assert_eq!(virtClose(vc), 0);
+    }
+    let calls = counter.calls.load(Ordering::SeqCst);
+    assert!(calls > 0);
+    std::thread::sleep(Duration::from_millis(30));
+    assert_eq!(counter.calls.load(Ordering::SeqCst), calls);
+    assert_eq!(p.stats().frames.get("close_session"), Some(&1));
+}
+
+#[test]
+fn trajectory_recording_writes_the_handle_poses() {
+    let p = peer([0.45, 0.05, 0.25], [0.05, 0.0, 0.0]);
+    let vc = open(&p);
+    let path = std::env::temp_dir().join(format!("virt_traj_{}.txt", std::process::id()));
+    let name = CString::new(path.to_str().unwrap()).unwrap();
+    // SAFETY: vc is live; name is NUL-terminated.
+    unsafe {
+        assert_eq!(virtTrajRecordStart(vc), -1);
+        assert_eq!(code(), VIRT_E_FILE_NOT_FOUND);
+        assert_eq!(virtSetOutputFile(vc, name.as_ptr() as *mut _), 0);
+        let mut max_s: c_uint = 0;
+        assert_eq!(virtTrajSetSamplingTimeStep(vc, 0.005, &mut max_s), 0);
+        assert_eq!(max_s, 5000);
+        assert_eq!(virtTrajRecordStart(vc), 0);
+        assert_eq!(virtTrajRecordStart(vc), -1);
+        assert_eq!(code(), VIRT_E_ALREADY_CALLED);
+        std::thread::sleep(Duration::from_millis(200));
+        assert_eq!(virtTrajRecordStop(vc), 0);
+        assert_eq!(virtTrajRecordStop(vc), -1);
+        assert_eq!(virtClose(vc), 0);
+    }
+    let text = std::fs::read_to_string(&path).unwrap();
+    let _ = std::fs::remove_file(&path);
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert!(rows.len() >= 5, "{} samples", rows.len());
+    for (i, r) in rows.iter().enumerate() {
+        assert_eq!(r.len(), 9, "{r:?}");
+        assert!((r[1] - 0.45).abs() <= 0.05 + 1e-6 && (r[2] - 0.05).abs() < 1e-6);
+        if i > 0 {
+            // Times on the sampling grid, increasing; controller cycles too.
+            let prev = &rows[i - 1];
+            let steps = (r[0] - prev[0]) / 0.005;
+            assert!(
+                steps >= 0.999 && (steps - steps.round()).abs() < 1e-3,
+                "{prev:?} {r:?}"
+            );
+            assert!(r[8] >= prev[8], "{prev:?} {r:?}");
+        }
+    }
+    // The handle moves: the samples differ.
+    assert!(rows.iter().any(|r| (r[1] - rows[0][1]).abs() > 1e-5));
+}
+
+#[test]
+fn status_reads_and_what_is_not_implemented() {
+    let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    // SAFETY: vc is live; pointers valid.
+    unsafe {
+        let (mut dm, mut es, mut pw, mut b) = (0, 0, 0, 7);
+        assert_eq!(virtSetPowerOn(vc, 1), 0);
+        std::thread::sleep(Duration::from_millis(20));
+        assert_eq!(virtGetPowerOn(vc, &mut pw), 0);
+        assert_eq!(pw, 1);
+        assert_eq!(virtGetDeadMan(vc, &mut dm), 0);
+        assert_eq!(dm, 1);
+        // VirtuoseAPI's meaning: 1 = operational (emergency stop released).
+        assert_eq!(virtGetEmergencyStop(vc, &mut es), 0);
+        assert_eq!(es, 1);
+        assert_eq!(virtGetButton(vc, 0, &mut b), 0);
+        assert_eq!(b, 0);
+        assert_eq!(virtGetButton(vc, 5, &mut b), -1);
+        assert_eq!(code(), VIRT_E_INCORRECT_VALUE);
+        let mut fail: c_uint = 9;
+        assert_eq!(virtGetFailure(vc, &mut fail), 0);
+        assert_eq!(fail, 0);
+        let mut t: c_uint = 0;
+        assert_eq!(virtGetTimeLastUpdate(vc, &mut t), 0);
+        assert!(t > 0);
+        let mut x = [0f32; 7];
+        assert_eq!(virtSetArticularPosition(vc, x.as_ptr()), -1);
+        assert_eq!(code(), VIRT_E_NOT_IMPLEMENTED);
+        assert_eq!(virtVmSetType(vc, 1), -1);
+        assert_eq!(code(), VIRT_E_NOT_IMPLEMENTED);
+        assert_eq!(virtGetCatchFrame(vc, x.as_mut_ptr()), -1);
+        assert_eq!(code(), VIRT_E_NOT_IMPLEMENTED);
+        assert_eq!(virtSetPwmOutput(vc, x.as_ptr()), -1);
+        assert_eq!(code(), VIRT_E_NOT_IMPLEMENTED);
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn reads_before_the_first_answer_wait_then_time_out() {
+    // A controller that grants the session but never answers.
+    let p = FakePeer::start(FakePeerConfig::default()).unwrap();
+    let vc = open(&p);
+    // SAFETY: vc is live.
+    unsafe {
+        assert_eq!(virtSetTimeoutValue(vc, 0.2), 0);
+        let mut pos = [0f32; 7];
+        let t = std::time::Instant::now();
+        assert_eq!(virtGetPosition(vc, pos.as_mut_ptr()), -1);
+        assert_eq!(code(), VIRT_E_TIME_OUT);
+        assert!(t.elapsed() >= Duration::from_millis(200));
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn buttons_emergency_stop_and_failures_from_the_answers() {
+    use hap_core::vp::{alarm, status};
+    let p = FakePeer::start(FakePeerConfig {
+        center: [0.45, 0.05, 0.25],
+        amplitude: [0.0; 3],
+        answer_every_period: true,
+        extra_status: status::BUTTON_2 | status::EMERGENCY_STOP,
+        alarms: alarm::FAIL_SAFE | alarm::TORQUE_SATURATED,
+        ..Default::default()
+    })
+    .unwrap();
+    let vc = open(&p);
+    // SAFETY: vc is live; pointers valid.
+    unsafe {
+        let (mut b0, mut b1, mut es) = (7, 7, 7);
+        assert_eq!(virtGetButton(vc, 0, &mut b0), 0);
+        assert_eq!(virtGetButton(vc, 1, &mut b1), 0);
+        assert_eq!((b0, b1), (0, 1));
+        // Button 1 is pressed: returns at once.
+        assert_eq!(virtWaitPressButton(vc, 1), 0);
+        assert_eq!(virtGetEmergencyStop(vc, &mut es), 0);
+        assert_eq!(es, 0, "pressed: not operational");
+        let (mut fail, mut a): (c_uint, c_uint) = (0, 0);
+        assert_eq!(virtGetFailure(vc, &mut fail), 0);
+        assert_eq!(fail, 0x3f);
+        assert_eq!(virtGetAlarm(vc, &mut a), 0);
+        assert_ne!(a & VIRT_ALARM_SATURATE, 0, "{a:#x}");
+        assert_ne!(a & alarm::FAIL_SAFE, 0, "{a:#x}");
+        assert_eq!(virtClose(vc), 0);
+    }
+    // A controller that stops answering: the wait fails instead of hanging.
+    let silent = FakePeer::start(FakePeerConfig::default()).unwrap();
+    let vc = open(&silent);
+    // SAFETY: vc is live.
+    unsafe {
+        assert_eq!(virtSetTimeoutValue(vc, 0.2), 0);
+        assert_eq!(virtWaitPressButton(vc, 0), -1);
+        assert_eq!(code(), VIRT_E_TIME_OUT);
+        assert_eq!(virtClose(vc), 0);
+    }
+}
