@@ -129,10 +129,13 @@ def main():
 
     w = max(len(r[0]) for r in rows)
     meaning = {"tcg-icount": "guest instruction time, ~1 ns/instruction: costs, not hardware latencies",
-               "kvm": "hardware virtualisation: guest wall-clock latencies on this host"}.get(
+               "kvm": "hardware virtualisation: guest wall-clock latencies on this host",
+               "host": "bare metal (bench-rt.sh --host): wall-clock latencies of this machine's kernel"}.get(
         mode, "see Documentation/development.md, Timing modes")
     load = phases.get("load", {}).get("kv", {}).get("load_kind", "n/a")
     print(f"# hapticctrl bench-rt: mode {mode} ({meaning})")
+    kernel = re.search(r"HAPTEST-KERNEL (.+)", text)
+    print(f"# kernel: {kernel[1].strip() if kernel else 'unknown'}")
     print(f"# period {period} us, {n} cycles per phase, SERVO SCHED_FIFO 80; cyclictest -m -p 80 -i {period} -l {n} -q -h 1000")
     print(f"# load phase: {load}; all SCHED_OTHER nice 0")
     print(f"# wall time of the whole run on this host: {wall} s")

@@ -13,7 +13,8 @@
 #
 # Environment (all optional):
 #   HAP_MODULE      path of hapticctrl.ko (default: first of
-#                   $HERE/hapticctrl.ko, /lib/modules/hapticctrl.ko, /hapticctrl.ko)
+#                   $HERE/hapticctrl.ko, /lib/modules/hapticctrl.ko, /hapticctrl.ko,
+#                   then the DKMS-installed one: /lib/modules/$(uname -r)/updates/dkms/)
 #   HAP_PROTO       proto_interface executable (default: $HERE/proto_interface,
 #                   else proto_interface from PATH)
 #   HAP_PROTO_ARGS  extra arguments for proto_interface (e.g. "--port 5000")
@@ -62,7 +63,8 @@ find_module() {
         echo "$HAP_MODULE"
         return 0
     fi
-    for m in "$HERE/$MODNAME.ko" "/lib/modules/$MODNAME.ko" "/$MODNAME.ko"; do
+    dkms=/lib/modules/$(uname -r)/updates/dkms/$MODNAME
+    for m in "$HERE/$MODNAME.ko" "/lib/modules/$MODNAME.ko" "/$MODNAME.ko" "$dkms.ko" "$dkms.ko.xz" "$dkms.ko.zst"; do
         if [ -f "$m" ]; then
             echo "$m"
             return 0

@@ -84,3 +84,32 @@ hap_add_binaries() {
   done
   return $rc
 }
+
+# hap_kmod_order MODULES.DEP NAME...: the paths (relative to the modules
+# directory, as in modules.dep) of the named modules and all they depend on,
+# each once, dependencies first: the order in which to insmod them.
+hap_kmod_order() {
+  python3 - "$@" <<'PY'
+import os, sys
+dep_file, names = sys.argv[1], sys.argv[2:]
+deps, by_name = {}, {}
+for line in open(dep_file):
+    mod, _, rest = line.partition(":")
+    deps[mod] = rest.split()
+    base = os.path.basename(mod).split(".ko")[0]
+    by_name[base] = by_name[base.replace("-", "_")] = mod
+order, seen = [], set()
+def visit(m):
+    if m in seen:
+        return
+    seen.add(m)
+    for d in deps.get(m, []):
+        visit(d)
+    order.append(m)
+for n in names:
+    if n not in by_name:
+        sys.exit("hap_kmod_order: no module %s in %s" % (n, dep_file))
+    visit(by_name[n])
+print("\n".join(order))
+PY
+}

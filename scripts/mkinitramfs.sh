@@ -48,6 +48,15 @@ mount -t sysfs sys /sys
 mount -t devtmpfs dev /dev 2>/dev/null
 mount -t tmpfs tmp /tmp
 mount -t tmpfs run /run
+# Drivers a distribution kernel builds as modules (virtio-net for Debian's),
+# in dependency order (scripts/qemu-run.sh --stock puts them here).
+for m in /lib/modules/boot/*.ko; do
+  [ -f "$m" ] && insmod "$m"
+done
+for _ in 1 2 3 4 5 6 7 8 9 10; do
+  [ -d /lib/modules/boot ] && [ ! -e /sys/class/net/eth0 ] || break
+  sleep 0.1
+done
 if [ -e /sys/class/net/eth0 ]; then
   ip link set lo up
   ip link set eth0 up
@@ -55,6 +64,7 @@ if [ -e /sys/class/net/eth0 ]; then
   ip route add default via 10.0.2.2
 fi
 echo "HAPTEST-BEGIN $(uname -r) $(cat /proc/cmdline)"
+echo "HAPTEST-KERNEL $(uname -rv)"
 cmdline=$(cat /proc/cmdline)
 args=""
 for w in $cmdline; do case "$w" in hap.args=*) args=$(echo "${w#hap.args=}" | tr ',' ' ') ;; esac; done

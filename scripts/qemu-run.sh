@@ -1,16 +1,21 @@
 #!/usr/bin/env bash
-# Boot the hapticctrl test kernel in QEMU with the module and run one in-guest
-# test script; exit with its status. The guest log is kept.
+# Boot the hapticctrl test kernel (or Debian's stock kernel) in QEMU with the
+# module and run one in-guest test script; exit with its status. The guest log
+# is kept; the guest prints its kernel (HAPTEST-KERNEL `uname -rv`).
 #   scripts/qemu-run.sh [options] TEST_SCRIPT [ARG ...]
 # Options:
 #   --debug             use the debug kernel variant (lockdep, atomic-sleep checks)
 #   --kasan             use the KASAN kernel variant (debug + generic KASAN; make KASAN=1)
+#   --stock             boot Debian's stock 7.3 rt-amd64 kernel (trixie-backports, its
+#                       vmlinuz and virtio-net modules unpacked by scripts/debian-kernel.sh)
+#                       with the module built against its headers (make STOCK=1)
 #   --icount            deterministic guest time: -icount shift=0,align=off,sleep=off -smp 1
 #   --icount-sleep      link-friendly guest time: -icount shift=0,align=off,sleep=on -smp 1
 #                       (busy time counted in instructions, idle time follows the host clock)
 #   --smp N             vCPUs (default 2; forced to 1 with --icount)
 #   --timeout S         kill the guest after S seconds (default 120): a hang fails
 #   --udp HOST:GUEST    forward UDP 127.0.0.1:HOST to the guest's port GUEST
+#   --ko FILE           boot this hapticctrl.ko instead of build/<variant>/module/
 #   --log FILE          keep the guest log there (default build/logs/<test>.log)
 #   --extra SRC:DST     add a file to the initramfs (repeatable)
 #   --key FILE          install FILE as the bridge's key (/etc/hapticctrl/hap.key)
@@ -23,25 +28,27 @@ set -euo pipefail
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 
-variant=""; period_us=""; icount=0; smp=2; timeout_s=120; udp=""; log=""; accel=${HAP_ACCEL:-}; background=0
+ko=""; variant=""; period_us=""; icount=0; smp=2; timeout_s=120; udp=""; log=""; accel=${HAP_ACCEL:-}; background=0
 extras=(); insecure_marker=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --debug) variant=debug ;;
     --kasan) variant=kasan ;;
+    --stock) variant=stock ;;
     --icount) icount=1 ;;
     --icount-sleep) icount=2 ;;
     --smp) smp=$2; shift ;;
     --timeout) timeout_s=$2; shift ;;
     --udp) udp=$2; shift ;;
     --log) log=$2; shift ;;
+    --ko) ko=$2; shift ;;
     --extra) extras+=("$2"); shift ;;
     --key) [ -f "$2" ] || die "--key $2: no such file"; extras+=("$2:/etc/hapticctrl/hap.key"); shift ;;
     --insecure-bridge) insecure_marker=$(mktemp); extras+=("$insecure_marker:/etc/hapticctrl/insecure") ;;
     --accel) accel=$2; shift ;;
     --background) background=1 ;;
     --period-us) period_us=$2; shift ;;
-    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
+    -h|--help) hap_usage; exit 0 ;;
     --) shift; break ;;
     -*) die "unknown option $1 (see --help)" ;;
     *) break ;;
@@ -53,14 +60,42 @@ shift
 [ -f "$test_script" ] || die "no such test script: $test_script"
 args=$(IFS=,; echo "$*")
 
-KDIR=$(bash "$HERE/build-kernel.sh" ${variant:+--$variant})
-ko="$HAP_ROOT/build/${variant:-base}/module/hapticctrl.ko"
-[ -f "$ko" ] || die "module not built: run 'make$( case "$variant" in debug) echo " DEBUG=1" ;; kasan) echo " KASAN=1" ;; esac)'"
+ko=${ko:-$HAP_ROOT/build/${variant:-base}/module/hapticctrl.ko}
+[ -f "$ko" ] || die "module not built: run 'make$( case "$variant" in debug) echo " DEBUG=1" ;; kasan) echo " KASAN=1" ;; stock) echo " STOCK=1" ;; esac)'"
+mem=512
+kmod_dir=""; stock_append=""
+if [ "$variant" = stock ]; then
+  # Debian's kernel: its vmlinuz, and virtio-net with its dependencies from
+  # its modules package (decompressed, loaded by /init in dependency order).
+  img=$(bash "$HERE/debian-kernel.sh" image)
+  krel=$(bash "$HERE/debian-kernel.sh" release)
+  kernel_image="$img/boot/vmlinuz-$krel"
+  mem=1024
+  # The emulated CPU needs no speculation mitigations (the self-built kernel
+  # has none compiled in); on, they cost the stock guest ~1/4 of its link rate.
+  stock_append="mitigations=off"
+  if [ -n "$udp" ]; then
+    kmod_dir=$(mktemp -d)
+    n=10
+    while read -r m; do
+      n=$((n + 1))
+      case "$m" in
+        *.xz) xz -dc "$img/lib/modules/$krel/$m" ;;
+        *.zst) zstd -qdc "$img/lib/modules/$krel/$m" ;;
+        *) cat "$img/lib/modules/$krel/$m" ;;
+      esac >"$kmod_dir/$n-$(basename "${m%.ko*}").ko"
+      extras+=("$kmod_dir/$n-$(basename "${m%.ko*}").ko:/lib/modules/boot/$n-$(basename "${m%.ko*}").ko")
+    done < <(hap_kmod_order "$img/lib/modules/$krel/modules.dep" virtio_net)
+  fi
+else
+  KDIR=$(bash "$HERE/build-kernel.sh" ${variant:+--$variant})
+  kernel_image="$KDIR/arch/x86/boot/bzImage"
+fi
 name=$(basename "$test_script" .sh)
 mkdir -p "$HAP_ROOT/build/logs"
 log=${log:-$HAP_ROOT/build/logs/$name${variant:+-$variant}.log}
 initrd=$(mktemp --suffix=.cpio.gz)
-trap 'rm -f "$initrd" ${insecure_marker:+"$insecure_marker"}' EXIT
+trap 'rm -f "$initrd" ${insecure_marker:+"$insecure_marker"}; [ -z "$kmod_dir" ] || rm -rf "$kmod_dir"' EXIT
 extra_args=()
 for e in "${extras[@]+"${extras[@]}"}"; do extra_args+=("$e"); done
 bash "$HERE/mkinitramfs.sh" "$initrd" "$ko" "$test_script" "${extra_args[@]+"${extra_args[@]}"}"
@@ -75,7 +110,7 @@ probe_kvm() {
     printf '#!/bin/sh\necho HAP-KVM-PROBE-OK\npoweroff -f\n' >"$pinit.sh"
     bash "$HERE/mkinitramfs.sh" "$pinit" "$ko" "$pinit.sh" 2>/dev/null
     if timeout 25 qemu-system-x86_64 -enable-kvm -cpu host -m 256 -nographic -no-reboot -nodefaults \
-        -serial stdio -kernel "$KDIR/arch/x86/boot/bzImage" -initrd "$pinit" \
+        -serial stdio -kernel "$kernel_image" -initrd "$pinit" \
         -append "console=ttyS0 panic=-1 rdinit=/init quiet" 2>/dev/null | grep -q HAP-KVM-PROBE-OK; then
       res=kvm
     fi
@@ -84,8 +119,8 @@ probe_kvm() {
   echo "$res" >"$cache"; echo "$res"
 }
 [ -n "$accel" ] || accel=$(probe_kvm)
-qemu=(qemu-system-x86_64 -m 512 -nographic -no-reboot -nodefaults -serial stdio
-  -kernel "$KDIR/arch/x86/boot/bzImage" -initrd "$initrd")
+qemu=(qemu-system-x86_64 -m "$mem" -nographic -no-reboot -nodefaults -serial stdio
+  -kernel "$kernel_image" -initrd "$initrd")
 mode="$accel"
 if [ "$accel" = kvm ]; then
   qemu+=(-enable-kvm -cpu host -smp "$smp")
@@ -99,7 +134,7 @@ fi
 if [ -n "$udp" ]; then
   qemu+=(-nic "user,model=virtio-net-pci,hostfwd=udp:127.0.0.1:${udp%%:*}-:${udp#*:}")
 fi
-append="console=ttyS0 panic=-1 rdinit=/init loglevel=6 tsc=reliable hap.mode=$mode${HAP_APPEND:+ $HAP_APPEND}"
+append="console=ttyS0 panic=-1 rdinit=/init loglevel=6 tsc=reliable${stock_append:+ $stock_append} hap.mode=$mode${HAP_APPEND:+ $HAP_APPEND}"
 [ -n "$args" ] && append="$append hap.args=$args"
 [ -n "$period_us" ] && append="$append hap.period_us=$period_us"
 qemu+=(-append "$append" ${HAP_QEMU_EXTRA:-})
@@ -107,7 +142,7 @@ log "booting $name (${variant:-base} kernel, accel=$mode${udp:+, udp $udp}); log
 
 if [ "$background" = 1 ]; then
   trap - EXIT
-  ( "${qemu[@]}" >"$log" 2>&1; rm -f "$initrd" ) &
+  ( "${qemu[@]}" >"$log" 2>&1; rm -f "$initrd"; [ -z "$kmod_dir" ] || rm -rf "$kmod_dir" ) &
   echo "$! $log"
   exit 0
 fi

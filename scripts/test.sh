@@ -3,19 +3,29 @@
 # fmt, clippy), the module build with its symbol check, and the QEMU suite.
 # Prints "N passed, N failed" per part and a total at the end.
 #   scripts/test.sh [--host-only | --qemu-only] [--no-debug-kernel] [--no-e2e]
+#                   [--no-debian] [--self-built-kernel]
+# The QEMU suite and the e2e link boot Debian's stock 7.3 rt-amd64 kernel with
+# the module built against its headers (trixie chroot, scripts/debian-kernel.sh);
+# --self-built-kernel boots the project's test kernel instead. The debug-kernel
+# suite (lockdep, atomic-sleep) always runs on the self-built debug kernel,
+# which also proves that the module builds with the self-built kernels'
+# toolchain. The Debian part (tests/debian/packages.sh) builds the DKMS and
+# tools packages and installs them in the chroot.
 set -uo pipefail
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 cd "$HAP_ROOT"
 
-host=1; qemu=1; debug=1; e2e=1
+host=1; qemu=1; debug=1; e2e=1; debian=1; kernel=stock
 for a in "$@"; do
   case "$a" in
     --host-only) qemu=0 ;;
     --qemu-only) host=0 ;;
     --no-debug-kernel) debug=0 ;;
     --no-e2e) e2e=0 ;;
-    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
+    --no-debian) debian=0 ;;
+    --self-built-kernel) kernel=self ;;
+    -h|--help) hap_usage; exit 0 ;;
     *) die "unknown argument '$a' (try --help)" ;;
   esac
 done
@@ -48,23 +58,38 @@ fi
 
 if [ "$qemu" = 1 ]; then
   build_p=0; build_f=0
-  log "building the test kernel (cached) and the module"
-  bash "$HERE/build-kernel.sh" >/dev/null || { echo "FAIL: kernel build"; build_f=$((build_f + 1)); }
-  if make -s; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: module build or symbol check"; fi
+  kflag=""
+  if [ "$kernel" = stock ]; then
+    kflag=--stock
+    log "Debian's stock kernel: trixie chroot, rust/ for its headers (cached), the module against them"
+    if make -s STOCK=1; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: module build against the stock kernel"; fi
+    if bash "$HERE/debian-kernel.sh" image >/dev/null; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: stock kernel image"; fi
+  else
+    log "building the test kernel (cached) and the module"
+    bash "$HERE/build-kernel.sh" >/dev/null || { echo "FAIL: kernel build"; build_f=$((build_f + 1)); }
+    if make -s; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: module build or symbol check"; fi
+  fi
   if bash "$HERE/build-userspace-static.sh"; then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: static userspace build"; fi
   if (cd userspace && cargo build --release --quiet -p virtuose_demo -p hapctl); then build_p=$((build_p + 1)); else build_f=$((build_f + 1)); echo "FAIL: host release build"; fi
   add "build" "$build_p" "$build_f"
   if [ "$build_f" = 0 ]; then
     out=$(mktemp)
-    bash tests/run-qemu-suite.sh | tee "$out"
+    bash tests/run-qemu-suite.sh $kflag | tee "$out"
     line=$(grep -E '^qemu: [0-9]+ passed' "$out" | tail -1)
-    add "qemu suite" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+    add "qemu suite ($kernel kernel)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
     rm -f "$out"
     if [ "$e2e" = 1 ]; then
       out=$(mktemp)
-      bash tests/e2e/link.sh | tee "$out"
+      bash tests/e2e/link.sh $kflag | tee "$out"
       line=$(grep -E '^e2e: [0-9]+ passed' "$out" | tail -1)
-      add "host<->guest e2e" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+      add "host<->guest e2e ($kernel kernel)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+      rm -f "$out"
+    fi
+    if [ "$debian" = 1 ] && [ "$kernel" = stock ]; then
+      out=$(mktemp)
+      bash tests/debian/packages.sh | tee "$out"
+      line=$(grep -E '^debian: [0-9]+ passed' "$out" | tail -1)
+      add "debian packages (dkms, tools, signing)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
       rm -f "$out"
     fi
     if [ "$debug" = 1 ]; then

@@ -5,16 +5,20 @@
 # DURATION seconds at 1 kHz; meanwhile a second client from another source
 # port must be refused and 10^4 hostile datagrams must be counted and change
 # nothing. Prints every figure, then "N passed, N failed".
-#   tests/e2e/link.sh [--duration S] [--period-us N] [--results DIR]
+# Prints the guest's kernel (`uname -rv`).
+#   tests/e2e/link.sh [--stock] [--duration S] [--period-us N] [--results DIR]
+# --stock: Debian's stock 7.3 rt-amd64 kernel with the module built against
+# its headers (make STOCK=1); default: the project's test kernel.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 . "$ROOT/scripts/lib.sh"
-duration=15; period_us=1000; results="$ROOT/build/e2e"
+duration=15; period_us=1000; results="$ROOT/build/e2e"; kflag=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --duration) duration=$2; shift ;;
     --period-us) period_us=$2; shift ;;
     --results) results=$2; shift ;;
+    --stock) kflag=--stock ;;
     *) die "unknown argument $1" ;;
   esac
   shift
@@ -33,12 +37,13 @@ port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DG
 # Authenticated (protocol v2): the bridge gets the key, so does the test
 # client; the second client has none.
 key=$(hap_keyfile "$ROOT/build/hap-test.key")
-read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background ${HAP_E2E_QEMU:---icount-sleep} --udp "$port:5000" --key "$key" \
+read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background $kflag ${HAP_E2E_QEMU:---icount-sleep} --udp "$port:5000" --key "$key" \
   --log "$results/guest.log" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" \
   "$ROOT/tests/guest/serve.sh" "$period_us" $((duration + 60)))
 trap 'kill $qpid 2>/dev/null' EXIT
 for _ in $(seq 600); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
 grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; die "the guest did not get ready"; }
+echo "# guest kernel: $(sed -n 's/^HAPTEST-KERNEL //p' "$qlog" | tr -d '\r' | head -1)"
 echo "# guest ready (plain TCG, servo period ${period_us} us); UDP 127.0.0.1:$port -> guest:5000"
 
 if [ "${HAP_E2E_NO_HOSTILE:-0}" = 1 ]; then true & else

@@ -4,10 +4,12 @@
 HT_PASS=0
 HT_FAIL=0
 HT_N=0
-HAP_KO=/lib/modules/hapticctrl.ko
-HAP_MODE=$(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' /proc/cmdline)
+# In the guest these come from the initramfs and the kernel command line;
+# scripts/bench-rt.sh --host sets them in the environment instead.
+HAP_KO=${HAP_KO:-/lib/modules/hapticctrl.ko}
+HAP_MODE=${HAP_MODE:-$(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' /proc/cmdline)}
 # The servo period the suite runs at (qemu-run.sh --period-us; 1000 by default).
-HAP_PERIOD_US=$(sed -n 's/.*hap\.period_us=\([0-9]*\).*/\1/p' /proc/cmdline)
+HAP_PERIOD_US=${HAP_PERIOD_US:-$(sed -n 's/.*hap\.period_us=\([0-9]*\).*/\1/p' /proc/cmdline)}
 HAP_PERIOD_US=${HAP_PERIOD_US:-1000}
 # cycles_in MS: servo cycles in MS milliseconds at the suite's period.
 cycles_in() { echo $(( $1 * 1000 / HAP_PERIOD_US )); }
@@ -24,8 +26,10 @@ check_not() { d=$1; shift; if "$@" >/tmp/check.out 2>&1; then fail "$d (unexpect
 expect() { d=$1; if [ "$2" "$3" "$4" ] 2>/dev/null; then pass "$d ($2 $3 $4)"; else fail "$d (got '$2', want $3 '$4')"; fi; }
 finish() { echo "$HT_PASS passed, $HT_FAIL failed"; [ "$HT_FAIL" -eq 0 ]; }
 
-# stat_value KEY: the value of "KEY: value" in /dev/hap_stats (first word).
-stat_value() { sed -n "s/^$1: *\([^ ]*\).*/\1/p" /dev/hap_stats | head -1; }
+# stat_value KEY [FILE]: the value of "KEY: value" in /dev/hap_stats (or in
+# FILE, a snapshot of it: counters compared with each other must come from
+# one snapshot) (first word).
+stat_value() { sed -n "s/^$1: *\([^ ]*\).*/\1/p" "${2:-/dev/hap_stats}" | head -1; }
 # dmesg_has PATTERN: the kernel log contains the (grep -E) pattern.
 dmesg_has() { dmesg | grep -q -E "$1"; }
 # Guest time in ms (monotonic, from /proc/uptime).
