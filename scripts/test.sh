@@ -54,6 +54,16 @@ if [ "$host" = 1 ]; then
   if (cd userspace && cargo clippy --workspace --all-targets --color never -q -- -D warnings); then lint_p=$((lint_p + 1)); else lint_f=$((lint_f + 1)); echo "FAIL: cargo clippy -D warnings"; fi
   if make -s rustfmtcheck >/dev/null; then lint_p=$((lint_p + 1)); else lint_f=$((lint_f + 1)); echo "FAIL: rustfmt --check on module/"; fi
   add "lint" "$lint_p" "$lint_f"
+
+  out=$(mktemp)
+  bash tests/host/check-ko-symbols.sh 2>&1 | tee "$out"
+  line=$(grep -E 'self-test: [0-9]+ passed' "$out" | tail -1)
+  add "symbol check self-test" "$(echo "$line" | sed -E 's/.*: ([0-9]+) passed, ([0-9]+) failed.*/\1/')" "$(echo "$line" | sed -E 's/.*: ([0-9]+) passed, ([0-9]+) failed.*/\2/')"
+  log "ViSP's vpVirtuose and Virtuose test programs, unchanged, against the fake controller"
+  bash tests/visp/run.sh --target fake 2>&1 | tee "$out"
+  line=$(grep -E '^visp-fake: [0-9]+ passed' "$out" | tail -1)
+  add "ViSP on VirtuoseAPI.h (fake controller)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+  rm -f "$out"
 fi
 
 if [ "$qemu" = 1 ]; then
