@@ -34,7 +34,7 @@ expect "the motor line applies 0" "$(applied_torques)" = "$ZERO"
 hapdev simlog --raw /tmp/overrun.bin > /tmp/simlog.txt
 sed 's/^/# /' /tmp/simlog.txt
 expect "log: non-zero torque before the cut" "$(summary_value torque_nonzero_before_cut)" -gt 100
-expect "log: SERVO's late cycle ran on the cut line" "$(summary_value records_from_cut)" -ge 1
+expect "log: SERVO's late cycle ran on the cut line" "$(summary_value servo_records_from_cut)" -ge 1
 expect "log: torque exactly 0 from the cut on" "$(summary_value torque_nonzero_from_cut)" = 0
 expect "log: every record from the cut on is flagged" "$(summary_value unflagged_after_cut)" = 0
 check "rmmod" rmmod hapticctrl
@@ -65,6 +65,7 @@ hapdev simlog --raw /tmp/hang.bin > /tmp/simlog.txt
 sed 's/^/# /' /tmp/simlog.txt
 expect "log: non-zero torque before the hang" "$(summary_value torque_nonzero_before_cut)" -gt 100
 expect "log: no record with torque from the cut on" "$(summary_value torque_nonzero_from_cut)" = 0
+expect "log: the hung SERVO logged no cycle after the cut" "$(summary_value servo_records_from_cut)" = 0
 check "rmmod releases the hung SERVO" rmmod hapticctrl
 check "dmesg: unloaded" dmesg_has 'hapticctrl: unloaded'
 finish

@@ -566,6 +566,8 @@ struct CutSummary {
     records_before_cut: usize,
     torque_nonzero_before_cut: usize,
     records_from_cut: usize,
+    /// Of those, records of SERVO's own cycles (not the fail-safe's steps).
+    servo_records_from_cut: usize,
     torque_nonzero_from_cut: usize,
     unflagged_after_cut: usize,
 }
@@ -581,6 +583,8 @@ impl CutSummary {
             }
             if s.first_cut_cycle.is_some() {
                 s.records_from_cut += 1;
+                s.servo_records_from_cut +=
+                    usize::from(r.mode != hap_core::simulator::LogMode::FailSafe);
                 s.torque_nonzero_from_cut += usize::from(nonzero);
                 s.unflagged_after_cut += usize::from(!cut);
             } else {
@@ -594,12 +598,14 @@ impl CutSummary {
     fn render(&self) -> String {
         format!(
             "first_cut_cycle: {}\nrecords_before_cut: {}\ntorque_nonzero_before_cut: {}\n\
-             records_from_cut: {}\ntorque_nonzero_from_cut: {}\nunflagged_after_cut: {}\n",
+             records_from_cut: {}\nservo_records_from_cut: {}\ntorque_nonzero_from_cut: {}\n\
+             unflagged_after_cut: {}\n",
             self.first_cut_cycle
                 .map_or_else(|| "none".to_string(), |c| c.to_string()),
             self.records_before_cut,
             self.torque_nonzero_before_cut,
             self.records_from_cut,
+            self.servo_records_from_cut,
             self.torque_nonzero_from_cut,
             self.unflagged_after_cut
         )
@@ -749,19 +755,29 @@ mod cut_summary_tests {
         }
     }
 
+    fn step_rec() -> LogRecord {
+        LogRecord {
+            flags: LINE_CUT,
+            mode: hap_core::simulator::LogMode::FailSafe,
+            ..LogRecord::ZERO
+        }
+    }
+
     #[test]
     fn counts_torque_on_each_side_of_the_cut() {
         let recs = [
             rec(1, 5, 0),
             rec(2, 0, 0),
+            step_rec(),
             rec(3, 0, LINE_CUT),
             rec(4, 7, LINE_CUT),
             rec(5, 0, 0),
         ];
         let s = CutSummary::of(&recs);
-        assert_eq!(s.first_cut_cycle, Some(3));
+        assert_eq!(s.first_cut_cycle, Some(0));
         assert_eq!((s.records_before_cut, s.torque_nonzero_before_cut), (2, 1));
-        assert_eq!((s.records_from_cut, s.torque_nonzero_from_cut), (3, 1));
+        assert_eq!((s.records_from_cut, s.torque_nonzero_from_cut), (4, 1));
+        assert_eq!(s.servo_records_from_cut, 3);
         assert_eq!(s.unflagged_after_cut, 1);
         assert!(s.render().contains("torque_nonzero_from_cut: 1\n"));
         assert_eq!(CutSummary::of(&recs[..2]).first_cut_cycle, None);
