@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Hostile-input campaign (issue 6): hostile datagrams at the bridge WHILE a
+# Hostile-input campaign: hostile datagrams at the bridge WHILE a
 # legitimate client servos, in ONE QEMU guest (tcg-icount-sleep by default,
 # as the link tests; --sleep-off for tcg-icount, where a loaded host cannot
 # make the servo miss: the reference run, Documentation/reliability.md). Two

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Link benchmark (issue 6): the test client on the host <-> the controller in
+# Link benchmark: the test client on the host <-> the controller in
 # ONE QEMU guest (module + proto_interface started by the launch script, as
 # in tests/e2e/link.sh: tests/guest/serve.sh, the user walking the handle
 # with tests/data/walk.eff), for N client cycles at a given request interval.
