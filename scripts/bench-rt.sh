@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Real-time benchmark in ONE guest boot (issue 6):
+# Real-time benchmark in ONE guest boot:
 #   scripts/bench-rt.sh [--cycles N] [--period-us P] [--long] [--no-cyclictest]
 #                       [--busybox-load] [--out DIR]
 # Boots tests/bench/rt-guest.sh: N servo cycles idle, then N cycles under a

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Host-side, repeatable cost of one SERVO cycle (issue 6, first slice):
+# Host-side, repeatable cost of one SERVO cycle:
 #   scripts/bench-step.sh [--no-rt] [--rt-seconds S] [--period-us P] [--load]
 # (a) callgrind: instructions per full cycle (hap_core::cycle::ServoCycle +
 #     answer encoding + log record), = (Ir(K=2000) - Ir(K=1000)) / 1000 with

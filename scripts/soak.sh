@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Long soak (issue 6; a separate command, not in CI):
+# Long soak (a separate command, not in CI):
 #   scripts/soak.sh [--cycles N] [--period-us P] [--no-load] [--rate HZ]
 #                   [--bridge-prio N] [--icount-shift S] [--out DIR]
 # One guest (QEMU TCG icount sleep=on: the host<->guest UDP link needs guest
