@@ -26,7 +26,8 @@
 #   HAP_INSECURE    1: no key, unauthenticated protocol v1 (proto_interface
 #                   --insecure; default 1 only if /etc/hapticctrl/insecure exists)
 #   HAP_USER        USER[:GROUP] the bridge runs as once it has read its key
-#                   (default hapticctrl if /etc/passwd has it; empty: root).
+#                   (default: unset, the bridge keeps the user it was started as;
+#                   opt-in until the unprivileged bridge answers in the guest).
 #                   The two FIFO devices get that group and mode 0660.
 #
 # Without a key file and without HAP_INSECURE=1, start refuses.
@@ -145,10 +146,10 @@ start() {
     else
         die "no key file $key (create one: hapctl keygen $key; copy it to the client) - or HAP_INSECURE=1 for unauthenticated v1"
     fi
+    # Least privilege is opt-in for now: in the QEMU guest a bridge dropped to
+    # an unprivileged user never answered a client (cause not found yet;
+    # tests/e2e/auth.sh), so the default keeps it as started.
     user=${HAP_USER-}
-    if [ -z "${HAP_USER+x}" ] && grep -q '^hapticctrl:' /etc/passwd 2>/dev/null; then
-        user=hapticctrl
-    fi
     group=""
     stats="$RUN/proto_interface.stats"
     if [ -n "$user" ]; then

