@@ -72,7 +72,7 @@ between HAP-SIMLOG | sed -E 's/\[ *[0-9]+\.[0-9]+\] .*$//' | grep -E "^[A-Za-z0-
 gv() { sed -n "s/^$2: *\([^ ]*\).*/\1/p" "$results/$1" | head -1; }
 
 [ "$crc" = 0 ] && ok "the test client ran ${duration} s against the guest" || nok "the test client failed (exit $crc): $(tail -3 "$results/client.txt")"
-# The rate is a figure, not an assertion (DEVELOPERS.md: performance targets
+# The rate is a figure, not an assertion (performance targets
 # are shown by benchmarks, never by timed assertions): under icount sleep=on
 # guest time runs at ~1/3 of real time, so a 1 ms servo answers ~300-350 times
 # per real second here; on KVM or bare metal, 1000.

@@ -20,7 +20,7 @@ expect "cycle rate <= 102 % of nominal" $((n * HAP_PERIOD_US / 10)) -le $((dt * 
 expect "no deadline miss" "$(stat_value misses)" = 0
 expect "state is running" "$(stat_value state)" = running
 expect "mode is normal" "$(stat_value mode)" = normal
-# Spec §4.2 figures, printed, not asserted (DEVELOPERS.md): guest time in
+# Spec §4.2 figures, printed, not asserted (tests never assert timing): guest time in
 # icount mode is instructions, so these are costs, not wall-clock latencies.
 echo "# FIGURE ($HAP_MODE) SERVO wake-up after CLOCK: max $(stat_value wakeup.max_ns) ns, p99 $(stat_value wakeup.p99_us) us (spec <= 50 us)"
 echo "# FIGURE ($HAP_MODE) full cycle: max $(stat_value exec.max_ns) ns, avg $(stat_value exec.avg_ns) ns (spec <= 500 us)"
