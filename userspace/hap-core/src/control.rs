@@ -410,6 +410,7 @@ fn fit_scale(base: Fx, add: Fx, lim: Fx) -> Fx {
 
 /// `cartesian_control`.
 #[allow(clippy::too_many_lines)]
+#[inline(never)]
 pub fn cartesian_control(
     ctrl: &mut Controller,
     ls: &LogicalState,

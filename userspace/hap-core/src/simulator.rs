@@ -131,6 +131,7 @@ impl Simulator {
     }
 
     /// The hardware's view of the arm now (`line`: the supply's state).
+    #[inline(never)]
     pub fn measures(&mut self, line: &MotorLine) -> Measures {
         let user = self.user;
         let rot = self.kinematics().handle_rot;
@@ -151,6 +152,7 @@ impl Simulator {
     /// `simulate_arm`: advance the arm by one servo period. The motors'
     /// torque is read from `line` at every sub-step.
     #[allow(clippy::needless_range_loop)]
+    #[inline(never)]
     pub fn simulate_arm(&mut self, line: &MotorLine) {
         let kin = *self.kinematics();
         let user_tau = arm::jacobian_transpose_mul(&kin.jacobian, &self.user.wrench);

@@ -98,6 +98,7 @@ pub struct PhysicalState {
 }
 
 /// `build_physical_state`.
+#[inline(never)]
 pub fn build_physical_state(m: &Measures) -> PhysicalState {
     let q = m.encoders.map(arm::encoder_angle);
     let kin = arm::kinematics(&q);
