@@ -121,10 +121,11 @@ impl Simulator {
         &self.user
     }
 
-    /// Kinematics at the current configuration.
+    /// Kinematics at the current configuration (the parts the simulated arm
+    /// uses, [`arm::Parts::SIMULATOR`]: no handle quaternion).
     pub fn kinematics(&mut self) -> &Kinematics {
         if !self.kin_valid {
-            self.kin = arm::kinematics(&self.q);
+            self.kin = arm::kinematics_with(&self.q, arm::Parts::SIMULATOR);
             self.kin_valid = true;
         }
         &self.kin
@@ -139,8 +140,8 @@ impl Simulator {
             encoders: self.q.map(arm::encoder_counts),
             joint_speeds: self.qd,
             force_sensor: Wrench {
-                force: rot.tmul_vec(user.wrench.force),
-                torque: rot.tmul_vec(user.wrench.torque),
+                force: rot.tmul_vec_unit(user.wrench.force),
+                torque: rot.tmul_vec_unit(user.wrench.torque),
             },
             power_on: line.supply_on(),
             dead_man: user.dead_man,
