@@ -733,11 +733,14 @@ pub fn cartesian_control(
         }
         s = s.min(fit_scale(*tf, *tc, *lim));
     }
-    if s < Fx::ONE {
+    let tau_c = if s < Fx::ONE {
         alarms |= alarm::TORQUE_SATURATED;
         handle_wrench = handle_wrench.scale(s);
-    }
-    let tau_c = arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench);
+        arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench)
+    } else {
+        // The wrench is unchanged: so are its joint torques.
+        tau_c
+    };
     let mut joint_torques = JOINTS_ZERO;
     for (((o, tf), tc), lim) in joint_torques
         .iter_mut()

@@ -192,6 +192,22 @@ impl Fx {
     pub const fn mul_sat(self, o: Fx) -> Fx {
         let a = self.0;
         let b = o.0;
+        // Both below 2^15 in magnitude (raw below 2^47), as every force,
+        // length, speed and gain of the controller: |ah·bh| < 2^30, the
+        // middle products < 2^47, so the sum below is the exact floor and
+        // cannot overflow: no saturation checks (the same result as the
+        // general path).
+        if (a.wrapping_add(1 << 47) as u64) < (1 << 48)
+            && (b.wrapping_add(1 << 47) as u64) < (1 << 48)
+        {
+            let (ah, al) = (a >> 32, a & 0xFFFF_FFFF);
+            let (bh, bl) = (b >> 32, b & 0xFFFF_FFFF);
+            let lo = (((al as u64).wrapping_mul(bl as u64)) >> 32) as i64;
+            return Fx((ah.wrapping_mul(bh) << 32)
+                .wrapping_add(ah.wrapping_mul(bl))
+                .wrapping_add(al.wrapping_mul(bh))
+                .wrapping_add(lo));
+        }
         let ah = a >> 32;
         let al = a & 0xFFFF_FFFF;
         let bh = b >> 32;
@@ -972,11 +988,25 @@ impl Quat {
 
     /// Hamilton product `self ⊗ o`.
     pub const fn mul(&self, o: &Quat) -> Quat {
+        // The identity on either side: the product below gives the other
+        // factor bit for bit; skip its 16 products (the base frame and the
+        // indexing offset are the identity unless a client sets them).
+        if self.is_identity() {
+            return *o;
+        }
+        if o.is_identity() {
+            return *self;
+        }
         let a = self.vec();
         let b = o.vec();
         let w = self.w.mul_sat(o.w).sub_sat(a.dot(b));
         let v = b.scale(self.w).add(a.scale(o.w)).add(a.cross(b));
         Quat::new(v.x, v.y, v.z, w)
+    }
+
+    /// Exactly (0, 0, 0, 1).
+    pub const fn is_identity(&self) -> bool {
+        self.x.0 == 0 && self.y.0 == 0 && self.z.0 == 0 && self.w.0 == Fx::ONE.0
     }
 
     pub const fn norm_sq(&self) -> Fx {
@@ -1012,6 +1042,11 @@ impl Quat {
 
     /// Rotate a vector: `q v q*` (Rodrigues form, 2 cross products).
     pub const fn rotate(&self, v: Vec3) -> Vec3 {
+        // No vector part: the products below are 0 and `v` comes out bit
+        // for bit, whatever `w`; skip them.
+        if self.x.0 == 0 && self.y.0 == 0 && self.z.0 == 0 {
+            return v;
+        }
         let u = self.vec();
         let t = u.cross(v).scale(Fx::TWO);
         v.add(t.scale(self.w)).add(u.cross(t))

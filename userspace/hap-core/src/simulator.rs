@@ -176,8 +176,12 @@ impl Simulator {
                 let (q, qd) = (self.q[i], self.qd[i]);
                 let mut tau = base[i]
                     .add_sat(motor[i])
-                    .sub_sat(arm::DAMPING[i].mul_sat(qd))
-                    .sub_sat(arm::COULOMB[i].mul_sat(qd.mul_sat(coulomb_gain).clamp_abs(Fx::ONE)));
+                    .sub_sat(qd.mul_unit(arm::DAMPING[i]))
+                    .sub_sat(
+                        qd.mul_int(coulomb_gain)
+                            .clamp_abs(Fx::ONE)
+                            .mul_unit(arm::COULOMB[i]),
+                    );
                 if q > arm::Q_MAX[i] {
                     limit = true;
                     let t = arm::STOP_STIFFNESS[i]
@@ -203,7 +207,7 @@ impl Simulator {
 }
 
 /// 1 / `arm::COULOMB_LINEAR_SPEED`.
-const COULOMB_GAIN: Fx = Fx::from_int(100);
+const COULOMB_GAIN: i64 = 100;
 
 /// Which path produced a [`LogRecord`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
