@@ -32,7 +32,7 @@
 //! `b_i` and Coulomb friction `fc_i` (linear below 0.01 rad/s), a stiff
 //! spring–damper stop at each position limit, and a motor torque limit.
 
-use super::fixed::{Fx, Joints, Mat3, Pose, Quat, Twist, Vec3, Wrench};
+use super::fixed::{Fx, Joints, Mat3, Pose, Quat, Twist, UnitFactor, Vec3, Wrench};
 
 /// Base yaw axis to shoulder, m.
 pub const H0: Fx = Fx::from_ratio(20, 100);
@@ -422,36 +422,32 @@ pub fn kinematics_with(q: &Joints, parts: Parts) -> Kinematics {
 
 /// `J · q̇`: the handle twist for joint speeds `qd`. `j`'s entries are at
 /// most 2 in magnitude (this arm's: ≤ 1.13), so the products are
-/// [`Fx::mul_unit`] (exactly `mul_sat` for the Jacobian of [`kinematics`]).
+/// [`Fx::mul_unit`]'s, two multiplies each with each speed split once
+/// (`fixed::UnitFactor`: speeds clamped to ±2^27): exactly `mul_sat` for
+/// the Jacobian of [`kinematics`], and the sums cannot overflow.
 pub fn jacobian_mul(j: &[Twist; 6], qd: &Joints) -> Twist {
-    let mut t = Twist::ZERO;
+    let mut t = [0i64; 6];
     for (col, v) in j.iter().zip(qd.iter()) {
-        t = t.add(&Twist {
-            linear: Vec3::new(
-                v.mul_unit(col.linear.x),
-                v.mul_unit(col.linear.y),
-                v.mul_unit(col.linear.z),
-            ),
-            angular: Vec3::new(
-                v.mul_unit(col.angular.x),
-                v.mul_unit(col.angular.y),
-                v.mul_unit(col.angular.z),
-            ),
-        });
+        let f = UnitFactor::new(*v);
+        for (o, u) in t.iter_mut().zip(col.to_array().iter()) {
+            *o = o.wrapping_add(f.mul(*u));
+        }
     }
-    t
+    Twist::from_array(t.map(Fx))
 }
 
 /// `Jᵀ · w`: joint torques producing the handle wrench `w` (force at the
-/// handle point, torque), base frame. [`Fx::mul_unit`] products, as in
-/// [`jacobian_mul`].
+/// handle point, torque), base frame. Products as in [`jacobian_mul`]
+/// (wrench components clamped to ±2^27 N, N·m).
 pub fn jacobian_transpose_mul(j: &[Twist; 6], w: &Wrench) -> Joints {
+    let f = w.to_array().map(UnitFactor::new);
     let mut tau = [Fx::ZERO; 6];
     for (t, col) in tau.iter_mut().zip(j.iter()) {
-        *t = col
-            .linear
-            .dot_unit(w.force)
-            .add_sat(col.angular.dot_unit(w.torque));
+        let mut s = 0i64;
+        for (fi, u) in f.iter().zip(col.to_array().iter()) {
+            s = s.wrapping_add(fi.mul(*u));
+        }
+        *t = Fx(s);
     }
     tau
 }

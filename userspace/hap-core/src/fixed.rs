@@ -631,6 +631,48 @@ impl SubAssign for Fx {
     }
 }
 
+/// A factor prepared for several products by factors `|u| ≤ 2` (rotation
+/// entries, this arm's Jacobian), as in [`Fx::mul_unit`]: its magnitude
+/// clamped to 2^27 (1.3e8, far beyond any force, torque or speed of the
+/// arm), split into its high and low 32 bits once. Each product is then
+/// two multiplies and no saturation check: `|u30·h| ≤ 2^58`, a product is
+/// below 2^60 and a sum of up to eight cannot overflow. Below the clamp a
+/// product is exactly `mul_unit`'s (so `mul_sat`'s for 30-bit factors).
+#[derive(Clone, Copy)]
+pub(crate) struct UnitFactor {
+    h: i64,
+    l: i64,
+}
+
+impl UnitFactor {
+    const LIM: i64 = 1 << 59;
+
+    pub(crate) const fn new(x: Fx) -> UnitFactor {
+        let x = if x.0 > Self::LIM {
+            Self::LIM
+        } else if x.0 < -Self::LIM {
+            -Self::LIM
+        } else {
+            x.0
+        };
+        UnitFactor {
+            h: x >> 32,
+            l: x & 0xFFFF_FFFF,
+        }
+    }
+
+    /// Raw Q32.32 of `x · u`; `u` as in [`Fx::mul_unit`] (Q2.30, clamped to ±2).
+    pub(crate) const fn mul(self, u: Fx) -> i64 {
+        let mut u30 = u.0 >> 2;
+        if u30 > (1 << 31) {
+            u30 = 1 << 31;
+        } else if u30 < -(1 << 31) {
+            u30 = -(1 << 31);
+        }
+        (u30.wrapping_mul(self.h) << 2).wrapping_add(u30.wrapping_mul(self.l) >> 30)
+    }
+}
+
 /// A 3-vector of `Fx`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Vec3 {
@@ -880,25 +922,27 @@ impl Mat3 {
 
     /// `self · v` for a matrix with entries ≤ 2 (a rotation): [`Fx::mul_unit`]
     /// products (exactly `mul_vec` for Q2.30 entries).
-    pub const fn mul_vec_unit(&self, v: Vec3) -> Vec3 {
+    pub fn mul_vec_unit(&self, v: Vec3) -> Vec3 {
         let [a, b, c] = self.r;
-        Vec3::new(a.dot_unit(v), b.dot_unit(v), c.dot_unit(v))
+        let (x, y, z) = (
+            UnitFactor::new(v.x),
+            UnitFactor::new(v.y),
+            UnitFactor::new(v.z),
+        );
+        let row = |r: Vec3| Fx(x.mul(r.x).wrapping_add(y.mul(r.y)).wrapping_add(z.mul(r.z)));
+        Vec3::new(row(a), row(b), row(c))
     }
 
     /// `selfᵀ · v` for a matrix with entries ≤ 2, like [`Mat3::mul_vec_unit`].
-    pub const fn tmul_vec_unit(&self, v: Vec3) -> Vec3 {
+    pub fn tmul_vec_unit(&self, v: Vec3) -> Vec3 {
         let [a, b, c] = self.r;
-        Vec3::new(
-            v.x.mul_unit(a.x)
-                .add_sat(v.y.mul_unit(b.x))
-                .add_sat(v.z.mul_unit(c.x)),
-            v.x.mul_unit(a.y)
-                .add_sat(v.y.mul_unit(b.y))
-                .add_sat(v.z.mul_unit(c.y)),
-            v.x.mul_unit(a.z)
-                .add_sat(v.y.mul_unit(b.z))
-                .add_sat(v.z.mul_unit(c.z)),
-        )
+        let (x, y, z) = (
+            UnitFactor::new(v.x),
+            UnitFactor::new(v.y),
+            UnitFactor::new(v.z),
+        );
+        let col = |a: Fx, b: Fx, c: Fx| Fx(x.mul(a).wrapping_add(y.mul(b)).wrapping_add(z.mul(c)));
+        Vec3::new(col(a.x, b.x, c.x), col(a.y, b.y, c.y), col(a.z, b.z, c.z))
     }
 
     /// `selfᵀ · v` without building the transpose.
