@@ -32,7 +32,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use hap_core::arm::TAU_MAX;
-use hap_core::control::BRAKE_START;
+use hap_core::control::{BRAKE_START, MAX_FORCE};
 use hap_core::simulator::{LogMode, LogRecord};
 use hap_core::stats::{histogram_entries, key_values, parse_summary, StatsSummary, HIST_SERIES};
 use hap_core::vp::status;
@@ -138,6 +138,13 @@ pub fn run(log: &Path, out: &Path, inputs: &Inputs<'_>) -> Result<(), String> {
         .unwrap_or_else(|| period_from_log(&recs));
     let run = Run::new(&recs, period_us, bad);
     let mut figs = run.figures();
+    if let (Some((st, _)), Some(f)) = (&stats, figs.iter_mut().find(|f| f.name == "timing")) {
+        f.title = format!(
+            "Cycle timing: {} deadline misses located in the log (red markers); the module counted {}",
+            run.misses(),
+            st.counters.misses
+        );
+    }
     if let Some(h) = &hist {
         figs.push(latency_histogram(h));
     }
@@ -278,6 +285,11 @@ pub struct Run<'a> {
     /// Time of each servo record, s.
     t: Vec<f64>,
     pub events: Vec<Event>,
+    /// Fail-safe step records with the time they ran at, s. Only their
+    /// applied torques (read from the motor line) are drawn: their other
+    /// servo fields are SERVO's last cycle's, or unknown
+    /// ([`crate::simlog::pose_unknown`]).
+    fail_safe: Vec<(f64, &'a LogRecord)>,
     pub continuity: Continuity,
     undecodable: usize,
     /// Cycles with kernel timing (tick ≠ 0): the log came from the module.
@@ -373,6 +385,7 @@ impl<'a> Run<'a> {
         // Fail-safe steps: at the tick they ran at, mapped onto cycles by
         // the last servo record before them.
         let mut last: Option<&LogRecord> = None;
+        let mut fail_safe = Vec::new();
         for r in all {
             if r.mode != LogMode::FailSafe {
                 last = Some(r);
@@ -383,8 +396,12 @@ impl<'a> Run<'a> {
                     l.cycle.saturating_add(r.timing.tick - l.timing.tick)
                 }
                 Some(l) => l.cycle,
+                // No servo record before it: its own cycle if it has one,
+                // else the tick (cycle n starts at tick n + 1).
+                None if crate::simlog::pose_unknown(r) => r.timing.tick.saturating_sub(1),
                 None => r.cycle,
             };
+            fail_safe.push((t_of(cycle), r));
             events.push(Event {
                 cycle,
                 t: t_of(cycle),
@@ -403,6 +420,7 @@ impl<'a> Run<'a> {
             period_us,
             t,
             events,
+            fail_safe,
             continuity,
             undecodable,
             timed,
@@ -426,7 +444,10 @@ impl<'a> Run<'a> {
             .map(|e| e.t)
             .chain(self.t.last().copied())
             .fold(lo, f64::max);
-        (lo, if hi > lo { hi } else { lo + self.period_s })
+        let hi = if hi > lo { hi } else { lo + self.period_s };
+        // A margin so that markers and dots at either end stay whole.
+        let pad = (hi - lo) * 0.01;
+        (lo - pad, hi + pad)
     }
 
     /// One value per servo record; a gap in the cycle count (dropped
@@ -464,11 +485,18 @@ impl<'a> Run<'a> {
         ];
         let mut out = Vec::new();
 
-        // Trajectories: handle and VPr in the client's frame.
+        // Trajectories: handle and VPr in the client's frame while a VPr
+        // is in use (the frame is the session's: outside it the two are
+        // not comparable), then the handle in the arm's base frame over
+        // the whole run.
         let mut panels = Vec::new();
         for (i, axis) in ["x", "y", "z"].iter().enumerate() {
             let h = self.series(&format!("handle {axis}"), xyz[i], |r| {
-                r.handle_position_client.to_f64()[i]
+                if r.vpr_age_cycles == LogRecord::NO_VPR {
+                    f64::NAN
+                } else {
+                    r.handle_position_client.to_f64()[i]
+                }
             });
             let mut v = self.series(&format!("VPr {axis}"), RGBColor(0, 0, 0), |r| {
                 if r.vpr_age_cycles == LogRecord::NO_VPR {
@@ -479,12 +507,27 @@ impl<'a> Run<'a> {
             });
             v.dashed = true;
             panels.push(Panel::fit(
-                &format!("{axis} (client frame)"),
-                "position (client units)",
+                &format!("{axis} in the client's frame, while a VPr is in use"),
+                "client units",
                 vec![h, v],
                 vec![],
             ));
         }
+        let base: Vec<Line> = (0..3)
+            .map(|i| {
+                self.series(
+                    &format!("handle {}", ["x", "y", "z"][i]),
+                    xyz[i],
+                    move |r| r.handle_position.to_f64()[i],
+                )
+            })
+            .collect();
+        panels.push(Panel::fit(
+            "handle in the arm's base frame, whole run",
+            "m",
+            base,
+            vec![],
+        ));
         out.push(self.figure(
             "trajectory",
             "Handle and VPr (the client's virtual object) trajectories",
@@ -515,10 +558,13 @@ impl<'a> Run<'a> {
             "Forces on the handle (arm base frame)",
             vec![
                 Panel::fit(
-                    "coupling force (controller → handle)",
+                    "coupling force (controller → handle); grey: its saturation ±MAX_FORCE",
                     "N",
                     comp("coupling", |r| r.coupling_force.to_f64()),
-                    vec![],
+                    vec![
+                        (MAX_FORCE.to_f64(), "+MAX_FORCE".into()),
+                        (-MAX_FORCE.to_f64(), "-MAX_FORCE".into()),
+                    ],
                 ),
                 Panel::fit(
                     "user's force",
@@ -546,10 +592,24 @@ impl<'a> Run<'a> {
             let app = self.series("applied", RGBColor(200, 30, 30), |r| {
                 r.motor_torque[j].to_f64()
             });
+            let mut lines = vec![cmd, app];
+            if !self.fail_safe.is_empty() {
+                // What the motors applied as each fail-safe step ran.
+                let mut fs = Line::new(
+                    "applied at fail-safe steps",
+                    RGBColor(0, 0, 0),
+                    self.fail_safe
+                        .iter()
+                        .map(|(t, r)| (*t, r.motor_torque[j].to_f64()))
+                        .collect(),
+                );
+                fs.points_only = true;
+                lines.push(fs);
+            }
             panels.push(Panel::fit(
                 &format!("joint {} (limit ±{} N·m)", j + 1, short(lim)),
                 "N·m",
-                vec![cmd, app],
+                lines,
                 vec![(lim, "+limit".into()), (-lim, "-limit".into())],
             ));
         }
@@ -567,12 +627,12 @@ impl<'a> Run<'a> {
         hand.y = log_range(&hand);
         hand.y.0 = hand.y.0.max(hand.y.1 * 1e-6);
         let ratio = self.series(
-            "max over joints |q̇ᵢ| / BRAKE_STARTᵢ",
+            "max over joints |dq/dt| / brake threshold",
             RGBColor(200, 30, 30),
             joint_speed_ratio,
         );
         let joints = Panel::fit(
-            "joint speeds against the velocity brake (grey: 1 = brake threshold)",
+            "joint speeds against the velocity brake (grey: 1 = the brake's threshold, control::BRAKE_START)",
             "ratio",
             vec![ratio],
             vec![(1.0, "brake threshold".into())],
@@ -612,8 +672,21 @@ impl<'a> Run<'a> {
             "energy",
             "Energy flow at the coupling port (> 0: the coupling does work on the handle)",
             vec![
-                Panel::fit("power", "W", vec![p_line], vec![]),
-                Panel::fit("energy", "J", vec![e_line, po], vec![]),
+                Panel::fit("power at the handle port", "W", vec![p_line], vec![]),
+                Panel::fit(
+                    "energy delivered at the handle port (running sum)",
+                    "J",
+                    vec![e_line],
+                    vec![],
+                ),
+                // Its own axis: it also counts the work at the VPr's port and
+                // the arm's viscous dissipation, so it is not the sum above.
+                Panel::fit(
+                    "passivity observer: energy into the coupling plus the arm's proven dissipation (≥ 0: passive)",
+                    "J",
+                    vec![po],
+                    vec![(0.0, "0".into())],
+                ),
             ],
         ));
 
@@ -898,7 +971,8 @@ pub fn fit_range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
     let pad = if span > 0.0 {
         span * 0.05
     } else {
-        (lo.abs() * 0.05).max(1e-6)
+        // A constant: a band readable in any of the units drawn.
+        (lo.abs() * 0.05).max(1e-3)
     };
     (lo - pad, hi + pad)
 }
@@ -1627,6 +1701,83 @@ mod tests {
         // The torque limits are on the torque axes.
         let tq = figs.iter().find(|f| f.name == "torques").unwrap();
         assert!(tq.panels[1].y.1 >= 25.0 && tq.panels[1].y.0 <= -20.0);
+    }
+
+    /// Fail-safe steps written while SERVO held its data (a hung cycle):
+    /// their servo fields are unknown and 0 in the record. The analysis
+    /// places them by their tick, draws only what they carry (the torques
+    /// at the motors), and never a pose, force or speed of 0.
+    #[test]
+    fn fail_safe_steps_with_unknown_pose_are_not_drawn_as_a_pose() {
+        use hap_core::servo::log_flags::POSE_UNKNOWN;
+        let mut recs = scripted();
+        let last_tick = recs
+            .iter()
+            .filter(|r| r.mode != LogMode::FailSafe)
+            .map(|r| r.timing.tick)
+            .max()
+            .unwrap();
+        for r in recs.iter_mut().filter(|r| r.mode == LogMode::FailSafe) {
+            let step = r.fail_safe_step;
+            *r = LogRecord::ZERO;
+            r.mode = LogMode::FailSafe;
+            r.fail_safe_step = step;
+            r.flags = POSE_UNKNOWN;
+            r.timing.tick = last_tick + u64::from(step);
+        }
+        let run = Run::new(&recs, PERIOD_US, 0);
+        let fs: Vec<u64> = run
+            .events
+            .iter()
+            .filter(|e| matches!(e.kind, EventKind::FailSafeStep(_)))
+            .map(|e| e.cycle)
+            .collect();
+        assert_eq!(fs, vec![1000, 1001, 1002, 1003, 1004]);
+        let figs = run.figures();
+        let servo_t: Vec<f64> = run.t.clone();
+        for f in figs
+            .iter()
+            .filter(|f| f.name != "events" && f.name != "torques")
+        {
+            for p in &f.panels {
+                for l in &p.lines {
+                    for (x, _) in l.points.iter().filter(|q| q.1.is_finite()) {
+                        assert!(
+                            servo_t.contains(x),
+                            "{}/{}/{}: a point at {x} s, not a servo cycle",
+                            f.name,
+                            p.title,
+                            l.name
+                        );
+                    }
+                }
+            }
+        }
+        // The handle sits at x = 0.1 all run: a pose of 0 would pull the
+        // axis down to 0.
+        let traj = figs.iter().find(|f| f.name == "trajectory").unwrap();
+        assert!(traj.panels[0].y.0 > 0.05, "{:?}", traj.panels[0].y);
+        // The torques the motors applied at each step are drawn, at their
+        // steps' times.
+        let tq = figs.iter().find(|f| f.name == "torques").unwrap();
+        let at_steps = tq.panels[1]
+            .lines
+            .iter()
+            .find(|l| l.name == "applied at fail-safe steps")
+            .unwrap();
+        let want: Vec<(f64, f64)> = fs.iter().map(|c| (*c as f64 * 1e-3, 0.0)).collect();
+        assert_eq!(at_steps.points.len(), 5);
+        for (got, want) in at_steps.points.iter().zip(&want) {
+            assert!((got.0 - want.0).abs() < 1e-9 && got.1 == want.1, "{got:?}");
+        }
+        // A log holding only such steps still places them by their tick.
+        let only: Vec<LogRecord> = recs
+            .iter()
+            .filter(|r| r.mode == LogMode::FailSafe)
+            .copied()
+            .collect();
+        let run = Run::new(&only, PERIOD_US, 0);
+        assert_eq!(run.events.first().map(|e| e.cycle), Some(last_tick));
     }
 
     #[test]
