@@ -47,6 +47,9 @@ for _ in $(seq 900); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 
 grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; die "the guest did not start (log: $qlog)"; }
 mode=$(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' "$qlog" | head -1)
 log "guest up (accelerator: $mode, servo period ${period_us} us); controller at 127.0.0.1:$port"
+# The run's mode for the report (every figure names the mode it came from).
+printf 'accelerator: %s\nservo_period_us: %s\nclient_duration_s: %s\nkernel: %s\n' "$mode" "$period_us" "$duration" \
+  "$(sed -n 's/.*Linux version \([^ ]*\) .*#[0-9]* \([A-Z_ ]*PREEMPT[A-Z_]*\).*/\1 \2/p' "$qlog" | head -1)" > "$results/run.txt"
 
 client=("$HAP_ROOT/userspace/target/release/virtuose_demo" --server "127.0.0.1#$port" --key "$key" --duration "$duration" --results "$results")
 cpid=""
@@ -76,7 +79,7 @@ if [ -s "$results/simlog.bin" ]; then
   extra=()
   [ -s "$results/hap_stats.txt" ] && extra+=(--stats "$results/hap_stats.txt")
   [ -s "$results/hap_hist.txt" ] && extra+=(--hist "$results/hap_hist.txt")
-  for f in summary.txt simlog.txt; do [ -s "$results/$f" ] && extra+=(--summary "$results/$f"); done
+  for f in run.txt summary.txt simlog.txt; do [ -s "$results/$f" ] && extra+=(--summary "$results/$f"); done
   if "$HAP_ROOT/userspace/target/release/hapctl" analyze "$results/simlog.bin" --out "$results/plots" \
       "${extra[@]}" > "$results/analysis.log" 2>&1; then
     report="$results/plots/summary.html"
@@ -88,8 +91,14 @@ echo
 echo "=== demo finished (accelerator: $mode; under TCG timing figures are emulation artefacts)"
 grep -E '^(sample_rate_hz|loss_ratio|rtt_ms_mean|coupling_error_mean_m|handle_travel_m|coupled_travel_m):' "$results/summary.txt" 2>/dev/null | sed 's/^/  client  /'
 grep -E '^(cycles|misses|max_consecutive_misses|wakeup.p99_us|exec.p99_us|frames_in|answers_sent|state):' "$results/hap_stats.txt" | sed 's/^/  module  /'
-grep -E '^(records|dropped_records|misses_located|fail_safe_steps|max_coupling_force_n|max_handle_speed_m_s):' "$results/plots/analysis.txt" 2>/dev/null | sed 's/^/  log     /' || true
-echo "results: $results (run.csv, summary.txt, hap_stats.txt, hap_hist.txt, proto_interface.txt, simlog.bin, plots/)"
+grep -E '^(records|duration_s|dropped_records|misses_located|fail_safe_steps|max_coupling_force_n|max_handle_speed_m_s):' "$results/plots/analysis.txt" 2>/dev/null | sed 's/^/  log     /' || true
+# The log's time is the guest's servo time: under TCG it runs slower than the
+# client's wall clock, and the plots' time axis is the guest's.
+guest_s=$(sed -n 's/^duration_s: *//p' "$results/plots/analysis.txt" 2>/dev/null)
+if [ -n "$guest_s" ]; then
+  echo "  the log's ${guest_s} s are guest servo time from insmod to the fail-safe (the client ran ${duration} s of wall time)"
+fi
+echo "results: $results (run.txt, run.csv, summary.txt, hap_stats.txt, hap_hist.txt, proto_interface.txt, simlog.bin, plots/)"
 if [ -n "$report" ]; then echo "report: $report"; fi
 if [ -n "$cpid" ] && kill -0 "$cpid" 2>/dev/null; then
   echo "the 3D page http://$http/ links to the report for 10 minutes (Ctrl-C ends it)"

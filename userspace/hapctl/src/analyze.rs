@@ -436,7 +436,8 @@ impl<'a> Run<'a> {
             .sum()
     }
 
-    fn x_range(&self) -> (f64, f64) {
+    /// The run's time span, s: first record to last event.
+    fn span(&self) -> (f64, f64) {
         let lo = self.t.first().copied().unwrap_or(0.0);
         let hi = self
             .events
@@ -444,8 +445,13 @@ impl<'a> Run<'a> {
             .map(|e| e.t)
             .chain(self.t.last().copied())
             .fold(lo, f64::max);
-        let hi = if hi > lo { hi } else { lo + self.period_s };
-        // A margin so that markers and dots at either end stay whole.
+        (lo, if hi > lo { hi } else { lo + self.period_s })
+    }
+
+    /// The time axis: the run's span and a margin, so that markers and
+    /// dots at either end stay whole.
+    fn x_range(&self) -> (f64, f64) {
+        let (lo, hi) = self.span();
         let pad = (hi - lo) * 0.01;
         (lo - pad, hi + pad)
     }
@@ -585,10 +591,12 @@ impl<'a> Run<'a> {
         let mut panels = Vec::new();
         for (j, lim) in TAU_MAX.iter().enumerate() {
             let lim = lim.to_f64();
-            let mut cmd = self.series("commanded", RGBColor(30, 60, 200), |r| {
+            // Wide and light under the applied torque: where the two
+            // differ (unpowered, cut, clamped) the command shows.
+            let mut cmd = self.series("commanded", RGBColor(120, 160, 255), |r| {
                 r.torque_command[j].to_f64()
             });
-            cmd.width = 1;
+            cmd.width = 4;
             let app = self.series("applied", RGBColor(200, 30, 30), |r| {
                 r.motor_torque[j].to_f64()
             });
@@ -766,7 +774,10 @@ impl<'a> Run<'a> {
             let mut w = w;
             w.points_only = true;
             let mut panel = Panel::fit(
-                "per cycle (log scale)",
+                &format!(
+                    "per cycle (log scale); grey: the deadline check at 3/4 period ({} µs)",
+                    short(deadline)
+                ),
                 "µs",
                 vec![l, w],
                 vec![(deadline, "deadline check (3/4 period)".into())],
@@ -805,7 +816,7 @@ impl<'a> Run<'a> {
             c.first_cycle.unwrap_or(0),
             c.last_cycle.unwrap_or(0)
         );
-        let (t0, t1) = self.x_range();
+        let (t0, t1) = self.span();
         let _ = writeln!(s, "duration_s: {:.3}", t1 - t0);
         let _ = writeln!(s, "period_us: {}", self.period_us);
         let _ = writeln!(s, "dropped_records: {}", c.dropped);
@@ -1423,7 +1434,7 @@ fn report_html(
         run.recs.len(),
         c.first_cycle.unwrap_or(0),
         c.last_cycle.unwrap_or(0),
-        run.x_range().1 - run.x_range().0,
+        run.span().1 - run.span().0,
         run.period_us
     );
     if c.dropped > 0 {

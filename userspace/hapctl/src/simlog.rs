@@ -108,6 +108,9 @@ pub struct Continuity {
     pub records: u64,
     /// Fail-safe step records.
     pub fail_safe: u64,
+    /// Of those, records whose servo fields are unknown (SERVO held its
+    /// data as the step ran: [`pose_unknown`]).
+    pub pose_unknown: u64,
     /// Cycles missing between consecutive servo records (dropped by the ring).
     pub dropped: u64,
     /// Times the cycle count went back (module reloaded: a new run).
@@ -123,6 +126,9 @@ impl Continuity {
         self.records = self.records.saturating_add(1);
         if r.mode == LogMode::FailSafe {
             self.fail_safe = self.fail_safe.saturating_add(1);
+            if pose_unknown(r) {
+                self.pose_unknown = self.pose_unknown.saturating_add(1);
+            }
             return;
         }
         if let Some(last) = self.last_cycle {
@@ -150,12 +156,13 @@ impl Continuity {
     pub fn text(&self) -> String {
         let opt = |v: Option<u64>| v.map(|c| c.to_string()).unwrap_or_else(|| "-".into());
         format!(
-            "records: {}\nfirst_cycle: {}\nlast_cycle: {}\ndropped_records: {}\nfail_safe_records: {}\nrestarts: {}\n",
+            "records: {}\nfirst_cycle: {}\nlast_cycle: {}\ndropped_records: {}\nfail_safe_records: {}\nfail_safe_pose_unknown: {}\nrestarts: {}\n",
             self.records,
             opt(self.first_cycle),
             opt(self.last_cycle),
             self.dropped,
             self.fail_safe,
+            self.pose_unknown,
             self.restarts
         )
     }
@@ -317,6 +324,9 @@ mod tests {
         r.timing.tick = 77;
         r.motor_torque[2] = hap_core::fixed::Fx::from_f64(0.5);
         assert!(pose_unknown(&r));
+        let c = Continuity::of(&[r, LogRecord { flags: 0, ..r }]);
+        assert_eq!((c.fail_safe, c.pose_unknown), (2, 1));
+        assert!(c.text().contains("fail_safe_pose_unknown: 1\n"));
         let row = csv_row(&r);
         let cols: Vec<&str> = row.split(',').collect();
         let head: Vec<&str> = CSV_HEADER.split(',').collect();
