@@ -97,7 +97,8 @@ echo
 echo "=== demo finished (accelerator: $mode; under TCG timing figures are emulation artefacts)"
 grep -E '^(sample_rate_hz|loss_ratio|rtt_ms_mean|coupling_error_mean_m|handle_travel_m|coupled_travel_m):' "$results/summary.txt" 2>/dev/null | sed 's/^/  client  /'
 grep -E '^(cycles|misses|max_consecutive_misses|wakeup.p99_us|exec.p99_us|frames_in|answers_sent|state):' "$results/hap_stats.txt" | sed 's/^/  module  /' || true
-# A fail-safe before the stop request (the module's own verdict) and its cause.
+# The fail-safe that ended the run and its cause (stop_requested: the end of a
+# normal run; miss_limit: the guest was starved, see timing.md).
 grep -a -m1 -o 'hapticctrl: fail-safe ([a-z_]*): start.*' "$qlog" | tr -d '\r' | sed 's/^/  guest   /' || true
 [ "$client_rc" = 0 ] || echo "  client  failed (exit $client_rc): $(grep -a 'error' "$results/client.txt" | tail -1)"
 grep -E '^(records|duration_s|dropped_records|misses_located|fail_safe_steps|max_coupling_force_n|max_handle_speed_m_s):' "$results/plots/analysis.txt" 2>/dev/null | sed 's/^/  log     /' || true

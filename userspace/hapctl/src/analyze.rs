@@ -1339,6 +1339,15 @@ where
         for seg in segments(&pts) {
             let anno = if l.dashed {
                 ch.draw_series(DashedLineSeries::new(seg, 6, 4, style))?
+            } else if l.width > 1 {
+                // A wide line as separate strokes: a joined wide polyline
+                // gets miter spikes at sharp reversals, far past its data
+                // (and past the panel) in the bitmap backend.
+                ch.draw_series(
+                    seg.windows(2)
+                        .map(|w| PathElement::new(w.to_vec(), style))
+                        .collect::<Vec<_>>(),
+                )?
             } else {
                 ch.draw_series(LineSeries::new(seg, style))?
             };
