@@ -1800,6 +1800,68 @@ mod tests {
         assert_eq!(run.events.first().map(|e| e.cycle), Some(last_tick));
     }
 
+    /// What the bitmap shows: a wide line with sharp reversals (the
+    /// commanded torque of a chattering joint) stays within its axis. Its
+    /// pixels lie between the rows of the two limit lines drawn at the
+    /// data's extremes (a joined wide polyline put miter spikes far past
+    /// them, out of the panel).
+    #[test]
+    fn a_wide_zigzag_stays_inside_its_axis() {
+        register_font();
+        let colour = RGBColor(120, 160, 255);
+        let pts: Vec<(f64, f64)> = (0..400)
+            .map(|i| (i as f64 * 1e-3, if i % 2 == 0 { 1.0 } else { -1.0 }))
+            .collect();
+        let mut line = Line::new("zigzag", colour, pts);
+        line.width = 4;
+        let panel = Panel::fit(
+            "zigzag",
+            "N·m",
+            vec![line],
+            vec![(1.0, "+".into()), (-1.0, "-".into())],
+        );
+        let fig = Figure {
+            name: "zigzag".into(),
+            title: "zigzag".into(),
+            x_label: "s".into(),
+            x: (0.0, 0.4),
+            panels: vec![panel],
+            markers: vec![],
+            columns: 1,
+        };
+        let (w, h) = (800u32, 400u32);
+        let mut buf = vec![0u8; (w * h * 3) as usize];
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+            draw_figure(&root, &fig).unwrap();
+            root.present().unwrap();
+        }
+        let px = |x: u32, y: u32| {
+            let i = ((y * w + x) * 3) as usize;
+            (buf[i], buf[i + 1], buf[i + 2])
+        };
+        let rows_of = |c: (u8, u8, u8)| -> Vec<u32> {
+            (0..h).filter(|y| (0..w).any(|x| px(x, *y) == c)).collect()
+        };
+        // The limit lines: grey rows (the widest grey runs).
+        let grey = (110u8, 110u8, 110u8);
+        let limit_rows: Vec<u32> = (0..h)
+            .filter(|y| (0..w).filter(|x| px(*x, *y) == grey).count() > (w / 2) as usize)
+            .collect();
+        let (top, bottom) = (*limit_rows.first().unwrap(), *limit_rows.last().unwrap());
+        assert!(bottom > top + 100, "{limit_rows:?}");
+        let rows = rows_of((colour.0, colour.1, colour.2));
+        assert!(!rows.is_empty(), "the line is drawn");
+        // Half the width (2 px) on either side of a limit, and the
+        // legend's sample (drawn inside the panel).
+        for y in rows {
+            assert!(
+                y + 3 >= top && y <= bottom + 3,
+                "line pixel at row {y}, limits at rows {top}..{bottom}"
+            );
+        }
+    }
+
     #[test]
     fn histogram_buckets_are_one_microsecond_wide() {
         let s = hist_steps(&[(5.0, 10.0), (3.0, 2.0), (4.0, 7.0)], 0.5);
