@@ -804,6 +804,27 @@ impl Vec3 {
     /// Scale down so that the norm is at most `max`; returns the vector and
     /// whether it was clamped.
     pub const fn clamp_norm(self, max: Fx) -> (Vec3, bool) {
+        // Quick exit, the same result as computing the norm: below 2^46 raw
+        // `norm()` is exact shifts, floor products and a floor root, so it
+        // is at most the true norm, itself at most √3 < 2 times the largest
+        // component and at most the sum of the components' magnitudes.
+        let ax = self.x.0.unsigned_abs();
+        let ay = self.y.0.unsigned_abs();
+        let az = self.z.0.unsigned_abs();
+        if max.0 >= 0 && ax < (1 << 46) && ay < (1 << 46) && az < (1 << 46) {
+            let mut m = ax;
+            if ay > m {
+                m = ay;
+            }
+            if az > m {
+                m = az;
+            }
+            let l1 = ax.wrapping_add(ay).wrapping_add(az);
+            let bound = if l1 < (m << 1) { l1 } else { m << 1 };
+            if bound <= max.0 as u64 {
+                return (self, false);
+            }
+        }
         let n = self.norm();
         if n.0 <= max.0 || n.0 <= 0 {
             return (self, false);

@@ -355,6 +355,36 @@ fn clamp_norm_bounds_huge_vectors() {
     assert!(c.norm().to_f64() <= 10.0 + 1e-6, "{}", c.norm().to_f64());
 }
 
+#[test]
+fn clamp_norm_leaves_a_vector_alone_exactly_when_its_norm_is_within() {
+    // The quick exit (largest component, sum of magnitudes) may only skip a
+    // norm that would have been ≤ max: compare with `norm()` itself, on
+    // vectors and limits of every scale, many within a few raw units.
+    let mut r = rng();
+    for _ in 0..200_000 {
+        let e: u32 = r.gen_range(0..62);
+        let span = 1i64 << e;
+        let v = Vec3::new(
+            Fx(r.gen_range(-span..=span)),
+            Fx(r.gen_range(-span..=span)),
+            Fx(r.gen_range(-span..=span)),
+        );
+        let n = v.norm();
+        let max = match r.gen_range(0..4) {
+            0 => n,
+            1 => Fx(n.0.saturating_sub(r.gen_range(0..4))),
+            2 => Fx(n.0.saturating_add(r.gen_range(0..4))),
+            _ => Fx(r.gen_range(0..=span.saturating_mul(2))),
+        };
+        let (c, clamped) = v.clamp_norm(max);
+        if n.0 <= max.0 || n.0 <= 0 {
+            assert!(!clamped && c == v, "{v:?} max {max:?} norm {n:?}");
+        } else {
+            assert!(clamped, "{v:?} max {max:?} norm {n:?}");
+        }
+    }
+}
+
 proptest! {
     #[test]
     fn arithmetic_never_panics(a in any::<i64>(), b in any::<i64>()) {
