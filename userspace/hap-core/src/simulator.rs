@@ -155,14 +155,18 @@ impl Simulator {
     #[allow(clippy::needless_range_loop)]
     #[inline(never)]
     pub fn simulate_arm(&mut self, line: &MotorLine) {
-        let kin = *self.kinematics();
-        let user_tau = arm::jacobian_transpose_mul(&kin.jacobian, &self.user.wrench);
         let dt = Fx(self.period.0 / SUBSTEPS as i64);
+        let wrench = self.user.wrench;
         let mut base = JOINTS_ZERO;
         let mut dt_over_i = JOINTS_ZERO;
-        for i in 0..6 {
-            base[i] = user_tau[i].add_sat(kin.gravity[i]);
-            dt_over_i[i] = dt.div_sat(kin.inertia[i]);
+        {
+            // Borrowed, not copied: only the Jacobian, gravity and inertia.
+            let kin = self.kinematics();
+            let user_tau = arm::jacobian_transpose_mul(&kin.jacobian, &wrench);
+            for i in 0..6 {
+                base[i] = user_tau[i].add_sat(kin.gravity[i]);
+                dt_over_i[i] = dt.div_sat(kin.inertia[i]);
+            }
         }
         let coulomb_gain = COULOMB_GAIN;
         let mut limit = false;
