@@ -461,28 +461,68 @@ const fn udiv_q32(a: u64, b: u64) -> u64 {
         return u64::MAX;
     }
     let q = a / b;
-    let mut r = a % b;
+    let r = a % b;
     if q >= (1u64 << 31) {
         return u64::MAX;
     }
     let frac = if r < (1u64 << 32) {
         (r << 32) / b
     } else {
-        let mut f: u64 = 0;
-        let mut i = 0;
-        while i < 32 {
-            // r < b <= 2^63, so r << 1 fits in u64.
-            r <<= 1;
-            f <<= 1;
-            if r >= b {
-                r -= b;
-                f |= 1;
-            }
-            i += 1;
-        }
-        f
+        frac_q32_wide(r, b)
     };
     (q << 32) | frac
+}
+
+/// `floor(r · 2^32 / b)` for `2^32 ≤ r < b ≤ 2^63`, without 128-bit arithmetic:
+/// one step of Knuth's long division (TAOCP 4.3.1, algorithm D) in 32-bit
+/// digits. With `b` normalised (top bit set) the estimate from the top
+/// digit of the divisor is at most 2 above the quotient, and with a
+/// two-digit divisor the test against its low digit is exact, so the loop
+/// ends on the floor. The same result as a 32-step restoring division (the
+/// reference in the tests), in about a tenth of the instructions.
+const fn frac_q32_wide(r: u64, b: u64) -> u64 {
+    const DIGIT: u64 = 1 << 32;
+    // b > r ≥ 2^32: s < 32, and r < b keeps r << s below 2^64.
+    let s = b.leading_zeros();
+    let v = b << s;
+    let u = r << s;
+    let v1 = v >> 32;
+    let v0 = v & 0xFFFF_FFFF;
+    // v1 ≥ 2^31: the fallbacks are never taken (no panic path).
+    let mut qhat = match u.checked_div(v1) {
+        Some(x) => x,
+        None => return u64::MAX,
+    };
+    let mut rhat = match u.checked_rem(v1) {
+        Some(x) => x,
+        None => return u64::MAX,
+    };
+    // qhat ≤ 2^32 + 2 and rhat < 2^32 on entry. qhat·v > r·2^s·2^32
+    // exactly when qhat ≥ 2^32 or qhat·v0 > rhat·2^32 (qhat < 2^32 there:
+    // the product fits); once rhat ≥ 2^32 the quotient is reached.
+    while rhat < DIGIT && (qhat >= DIGIT || qhat.wrapping_mul(v0) > (rhat << 32)) {
+        qhat = qhat.wrapping_sub(1);
+        rhat = rhat.wrapping_add(v1);
+    }
+    qhat
+}
+
+/// The 32-step restoring division that [`frac_q32_wide`] replaces.
+#[cfg(test)]
+const fn frac_q32_bitwise(mut r: u64, b: u64) -> u64 {
+    let mut f: u64 = 0;
+    let mut i = 0;
+    while i < 32 {
+        // r < b <= 2^63, so r << 1 fits in u64.
+        r <<= 1;
+        f <<= 1;
+        if r >= b {
+            r -= b;
+            f |= 1;
+        }
+        i += 1;
+    }
+    f
 }
 
 /// `floor(sqrt(n))`: Newton's iteration from a power of two at or above the
@@ -1411,3 +1451,67 @@ pub type Joints = [Fx; 6];
 
 /// Zero joint vector.
 pub const JOINTS_ZERO: Joints = [Fx::ZERO; 6];
+
+#[cfg(test)]
+mod tests {
+    use super::{frac_q32_bitwise, frac_q32_wide, udiv_q32};
+
+    #[test]
+    fn wide_fraction_is_the_restoring_division() {
+        // Edge divisors (normalised top digits at 2^31 and 2^32 − 1, low
+        // digits at 0 and 2^32 − 1: the estimate's worst cases), edge
+        // remainders, then pseudo-random pairs of every width.
+        let mut cases = Vec::new();
+        // The domain: `b` is the magnitude of an i64, at most 2^63.
+        for b in [
+            (1u64 << 32) + 1,
+            (1u64 << 33) - 1,
+            1u64 << 63,
+            (1u64 << 63) - 1,
+            0x4000_0000_FFFF_FFFF,
+            0x7FFF_FFFF_0000_0000,
+            0x4000_0001_0000_0000,
+            0x1_0000_FFFF_FFFF,
+        ] {
+            for r in [
+                1u64 << 32,
+                b - 1,
+                b / 2,
+                b - (1 << 32),
+                (b >> 1) | (1 << 32),
+            ] {
+                if r >= (1 << 32) && r < b {
+                    cases.push((r, b));
+                }
+            }
+        }
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for _ in 0..2_000_000 {
+            let wb = 33 + (next() % 31) as u32; // 33..=63 bits
+            let b = (next() >> (64 - wb)) | (1 << (wb - 1));
+            let wr = 33 + (next() % u64::from(wb - 32)) as u32;
+            let r = next() >> (64 - wr);
+            let r = if r >= b { r - b } else { r };
+            let r = if r < (1 << 32) { r | (1 << 32) } else { r };
+            if r < b {
+                cases.push((r, b));
+            }
+        }
+        for (r, b) in cases {
+            assert_eq!(
+                frac_q32_wide(r, b),
+                frac_q32_bitwise(r, b),
+                "r {r:#x} b {b:#x}"
+            );
+        }
+        // Through the quotient: 1 / 2.5 and a divisor near the top.
+        assert_eq!(udiv_q32(1 << 32, 5 << 31), 0x6666_6666);
+        assert_eq!(udiv_q32(3, u64::MAX), 0);
+    }
+}
