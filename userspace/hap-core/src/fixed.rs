@@ -265,6 +265,10 @@ impl Fx {
                 Fx::ZERO
             };
         }
+        if o.0 == Fx::ONE.0 {
+            // What the division gives (`MIN / 1` saturates to `MIN`).
+            return self;
+        }
         let neg = (self.0 < 0) != (o.0 < 0);
         let r = udiv_q32(self.0.unsigned_abs(), o.0.unsigned_abs());
         apply_sign(r, neg)
@@ -768,6 +772,11 @@ impl Vec3 {
     }
 
     pub const fn scale(self, k: Fx) -> Vec3 {
+        // `x.mul_sat(ONE)` is `x` for every x (one partial product, exact):
+        // the speed, force and envelope factors are mostly 1.
+        if k.0 == Fx::ONE.0 {
+            return self;
+        }
         Vec3::new(self.x.mul_sat(k), self.y.mul_sat(k), self.z.mul_sat(k))
     }
 

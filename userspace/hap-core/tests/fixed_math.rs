@@ -405,6 +405,22 @@ proptest! {
     }
 
     #[test]
+    fn by_one_is_identity_as_the_general_paths_compute_it(a in any::<i64>()) {
+        // `Vec3::scale(ONE)` and `div_sat(ONE)` return their operand without
+        // the arithmetic: the exact floor of a·2^32/2^32 (and of a·2^32/2^32
+        // as a quotient), saturated like the general paths.
+        let x = Fx(a);
+        let v = Vec3::new(x, Fx(a.wrapping_mul(3)), Fx(a.rotate_left(17)));
+        prop_assert_eq!(v.scale(Fx::ONE), Vec3::new(v.x.mul_sat(Fx::ONE), v.y.mul_sat(Fx::ONE), v.z.mul_sat(Fx::ONE)));
+        prop_assert_eq!(v.scale(Fx::ONE), v);
+        let q = ((a as i128) << 32) / (1i128 << 32);
+        prop_assert_eq!(x.div_sat(Fx::ONE).0 as i128, q);
+        // One raw unit away from 1 takes the general path and differs.
+        prop_assert_eq!(x.div_sat(Fx(Fx::ONE.0 + 1)).0 as i128,
+            (((a as i128) << 32) / ((1i128 << 32) + 1)).clamp(i64::MIN as i128, i64::MAX as i128));
+    }
+
+    #[test]
     fn div_matches_exact_quotient(a in -(1i64 << 50)..(1i64 << 50), b in 1i64..(1i64 << 50)) {
         let exact = ((a as i128) << 32) / (b as i128);
         if exact.abs() < (1i128 << 62) {
