@@ -178,14 +178,36 @@ impl Simulator {
             self.applied = motor;
             for i in 0..6 {
                 let (q, qd) = (self.q[i], self.qd[i]);
-                let mut tau = base[i]
-                    .add_sat(motor[i])
-                    .sub_sat(qd.mul_unit(arm::DAMPING[i]))
-                    .sub_sat(
-                        qd.mul_int(coulomb_gain)
-                            .clamp_abs(Fx::ONE)
-                            .mul_unit(arm::COULOMB[i]),
-                    );
+                let mut tau =
+                    if within(qd, 1 << 40) && within(base[i], 1 << 45) && within(motor[i], 1 << 45)
+                    {
+                        // No sum below can saturate (|base + motor| < 2^46,
+                        // |b·q̇| < 2^42 raw, |fc·sat| ≤ 2^33): plain sums, the
+                        // same result as the saturating ones. q̇·100 clamped to
+                        // ±1 by comparing q̇ with ⌈2^32/100⌉ raw (the product
+                        // below it cannot overflow).
+                        let sat = if qd.0 >= COULOMB_KNEE {
+                            Fx::ONE
+                        } else if qd.0 <= -COULOMB_KNEE {
+                            Fx::ONE.neg_sat()
+                        } else {
+                            Fx(qd.0.wrapping_mul(coulomb_gain))
+                        };
+                        Fx(base[i]
+                            .0
+                            .wrapping_add(motor[i].0)
+                            .wrapping_sub(qd.mul_unit(arm::DAMPING[i]).0)
+                            .wrapping_sub(sat.mul_unit(arm::COULOMB[i]).0))
+                    } else {
+                        base[i]
+                            .add_sat(motor[i])
+                            .sub_sat(qd.mul_unit(arm::DAMPING[i]))
+                            .sub_sat(
+                                qd.mul_int(coulomb_gain)
+                                    .clamp_abs(Fx::ONE)
+                                    .mul_unit(arm::COULOMB[i]),
+                            )
+                    };
                 if q > arm::Q_MAX[i] {
                     limit = true;
                     let t = arm::STOP_STIFFNESS[i]
@@ -212,6 +234,14 @@ impl Simulator {
 
 /// 1 / `arm::COULOMB_LINEAR_SPEED`.
 const COULOMB_GAIN: i64 = 100;
+
+/// The smallest raw q̇ with `q̇ · COULOMB_GAIN ≥ 1` (⌈2^32 / 100⌉).
+const COULOMB_KNEE: i64 = (Fx::ONE.0 + COULOMB_GAIN - 1) / COULOMB_GAIN;
+
+/// `|x| < lim` raw.
+const fn within(x: Fx, lim: i64) -> bool {
+    x.0 > -lim && x.0 < lim
+}
 
 /// Which path produced a [`LogRecord`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
