@@ -58,7 +58,7 @@ read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background $kflag ${HAP
 # qpid is the subshell that waits for QEMU: stop QEMU itself too.
 stop_guest() { pkill -P "$qpid" 2>/dev/null; kill "$qpid" 2>/dev/null; }
 trap stop_guest EXIT
-for _ in $(seq 600); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
+for _ in $(seq 3000); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
 grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; die "the guest did not get ready"; }
 echo "# guest kernel: $(sed -n 's/^HAPTEST-KERNEL //p' "$qlog" | tr -d '\r' | head -1)"
 echo "# guest ready (plain TCG, servo period ${period_us} us); UDP 127.0.0.1:$port -> guest:5000"
@@ -115,6 +115,7 @@ check_num "coupling error, mean (m; mean force / K_t + 2 mm)" "$(sv coupling_err
 check_num "coupling error, max (m; 20 N / K_t)" "$(sv coupling_error_max_m)" '<' "$(awk -v k="$kt" 'BEGIN { printf "%.5f", 20 / k }')"
 [ "$(cat "$results/second_client.rc" 2>/dev/null)" != 0 ] && ok "a second client from another source port is refused" || nok "the second client was not refused: $(tail -2 "$results/second_client.txt")"
 check_num "module: exactly one session opened" "$(gv hap_stats.txt sessions_opened)" '==' 1
+check_num "bridge and module count the same sessions" "$(gv proto_interface.txt sessions_opened)" '==' "$(gv hap_stats.txt sessions_opened)"
 # Accounting, component by component.
 rcv=$(gv proto_interface.txt received); fwd=$(gv proto_interface.txt forwarded); rej=$(gv proto_interface.txt rejected)
 acct=$(( $(gv proto_interface.txt forwarded) + $(gv proto_interface.txt write_errors) + $(gv proto_interface.txt retransmits_reacked) + rej ))

@@ -2,8 +2,9 @@
 # In-guest side of tests/e2e/auth.sh: the controller started by the launch
 # script with the key, the user gripping the handle without effort, the arm
 # powered. While the host's keyless clients attack, the position log is
-# recorded; once the bridge has refused them and 1.5 s passed without a new
-# refusal (and nothing was verified yet), the recording stops and the
+# recorded; once the bridge has counted the host's end-of-attack marker
+# (oversized datagrams) and 1.5 s passed without a new refusal (and nothing
+# was verified yet), the recording stops and the
 # handle's largest displacement is printed (HAP-ATTACK-DONE). Then serve the
 # host's key-holding client until it has opened and closed its session, and
 # print the module's and the bridge's statistics between markers.
@@ -11,7 +12,8 @@
 . /tests/lib.sh
 period=${1:-1000}
 max_s=${2:-240}
-check "launch script starts proto_interface and the module" hapticctrl.sh start --period-us "$period"
+# The bridge at a real-time priority: it then keeps CAP_SYS_NICE, and only it.
+check "launch script starts proto_interface and the module" env HAP_PROTO_ARGS="--rt-priority 50" hapticctrl.sh start --period-us "$period"
 check "the user grips the handle, no effort" sh -c 'echo "live 0 0 0 0 0 0" > /dev/hap_effort'
 check "arm powered" hapctl power on
 bp=$(pidof proto_interface)
@@ -36,7 +38,9 @@ while [ $t -lt $((max_s * 10)) ]; do
   [ "${v:-0}" -gt 0 ] && break
   if [ "${r:-0}" -gt 0 ] && [ "$r" = "$last" ]; then quiet=$((quiet + 1)); else quiet=0; fi
   last=$r
-  [ $quiet -ge 15 ] && break
+  # The host ends the attacks with oversized datagrams (no attacker sends
+  # any): once they were counted, 1.5 s without a new refusal end the phase.
+  [ $quiet -ge 15 ] && [ "$(pv rejected_oversize)" -gt 0 ] && break
 done
 kill "$logger"; wait "$logger" 2>/dev/null
 expect "nothing was verified during the attack" "$(pv verified)" -eq 0
@@ -56,6 +60,8 @@ usleep 500000
 echo "HAP-STATS-BEGIN"; cat /dev/hap_stats; echo "HAP-STATS-END"
 kill -USR1 "$bp" 2>/dev/null; usleep 300000
 echo "HAP-PROTO-BEGIN"; cat /run/proto_interface.stats 2>/dev/null; echo "HAP-PROTO-END"
+echo "HAP-UDP $(awk '/^Udp:/ { if (!h) { split($0, k); h = 1 } else { for (i = 2; i <= NF; i++) printf "%s=%s ", k[i], $i } }' /proc/net/snmp)"
+echo "HAP-BRIDGE-SCHED $(cut -d' ' -f41 /proc/$bp/stat 2>/dev/null)"
 echo "HAP-PROTO-LOG-BEGIN"; cat /run/proto_interface.log 2>/dev/null | head -40; echo "HAP-PROTO-LOG-END"
 check "launch script stops cleanly" hapticctrl.sh stop
 finish

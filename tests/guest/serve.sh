@@ -30,6 +30,9 @@ done
 expect "a client opened and closed a session" "$(stat_value sessions_opened)" -ge 1
 usleep 500000
 echo "HAP-STATS-BEGIN"; cat /dev/hap_stats; echo "HAP-STATS-END"
+# The bridge's CPU time (all its threads, ns of guest time), for its cost
+# per frame.
+echo "HAP-BRIDGE-CPU-NS $(cat /proc/$bp/task/*/schedstat 2>/dev/null | awk '{ s += $1 } END { printf "%d", s }')"
 kill -USR1 "$(pidof proto_interface)" 2>/dev/null; usleep 300000
 echo "HAP-PROTO-BEGIN"; cat /run/proto_interface.stats 2>/dev/null; echo "HAP-PROTO-END"
 # The guest's UDP counters (the bridge's socket is the only one): datagrams

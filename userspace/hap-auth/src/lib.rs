@@ -22,8 +22,8 @@ use std::io::Read;
 use std::path::Path;
 
 use hap_core::protocol::{
-    decode, read_header, seal_crc, write_header, DecodeError, Frame, FrameHeader, FrameType, SeqCheck, SeqWindow,
-    CTRL_ACK_REQUEST, ERROR_REFUSED, HEADER_LEN, MAGIC, MAX_FRAME_LEN,
+    decode, read_header, seal_crc, write_header, DecodeError, Frame, FrameHeader, FrameType,
+    SeqCheck, SeqWindow, CTRL_ACK_REQUEST, ERROR_REFUSED, HEADER_LEN, MAGIC, MAX_FRAME_LEN,
 };
 use hmac::{Hmac, Mac};
 use sha2::Sha256;
