@@ -81,7 +81,8 @@ echo "# attack phase: $attack"
 cpid=$!
 cport=""
 for _ in $(seq 100); do
-  cport=$(ss -Hunp 2>/dev/null | awk -v p="127.0.0.1:$port" '$5 == p && /virtuose_demo/ { n = split($4, a, ":"); print a[n]; exit }')
+  # Its socket is not connected (UNCONN: ss -a), found by the client's pid.
+  cport=$(ss -Hunap 2>/dev/null | awk -v p="pid=$cpid," 'index($0, p) { n = split($4, a, ":"); print a[n]; exit }')
   [ -n "$cport" ] && break; sleep 0.1
 done
 [ -n "$cport" ] || nok "could not find the client's source port"
@@ -111,7 +112,8 @@ check_num "bridge: nothing forwarded to rtf_in during the attack" "$(gv attack_s
 check_num "module: no session opened during the attack" "$(gv attack_stats.txt sessions_opened)" '==' 0
 check_num "module: no frame reached PROTO_IN during the attack" "$(gv attack_stats.txt frames_in)" '==' 0
 check_num "position log recorded during the attack (records)" "$(echo "$attack" | sed -n 's/.*records=\([0-9]*\).*/\1/p')" '>=' 500
-check_num "the powered arm's handle did not move (max displacement, m)" "$(echo "$attack" | sed -n 's/.*max_displacement_m=\([0-9.]*\).*/\1/p')" '<=' 0.000001
+disp=$(awk -v d="$(echo "$attack" | sed -n 's/.*max_displacement_m2=\([0-9.]*\).*/\1/p')" 'BEGIN { if (d != "") printf "%.9f", sqrt(d) }')
+check_num "the powered arm's handle did not move (max displacement, m)" "$disp" '<=' 0.000001
 
 echo "## 2. the key holder under forged traffic"
 [ "$crc" = 0 ] && ok "the key holder's client ran ${duration} s" || nok "the client failed (exit $crc): $(tail -3 "$results/client.txt")"
