@@ -47,7 +47,11 @@ expect "nothing was verified during the attack" "$(pv verified)" -eq 0
 echo "HAP-ATTACK-STATS-BEGIN"; cat /run/proto_interface.stats; grep -E '^(sessions_opened|frames_in|vpr_frames|session|power|cycles):' /dev/hap_stats; echo "HAP-ATTACK-STATS-END"
 # Largest displacement of the handle over the recorded cycles, squared (m^2:
 # busybox awk may lack sqrt; the host takes the root).
-awk -F, 'NR == 2 { x = $5; y = $6; z = $7 } NR > 1 { d = ($5 - x) * ($5 - x) + ($6 - y) * ($6 - y) + ($7 - z) * ($7 - z); if (d > m) m = d; n++ }
+# The columns are found by name in the CSV header (hapctl's simlog format).
+awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) c[$i] = i; if (!c["hx"]) exit; next }
+  { x = $(c["hx"]); y = $(c["hy"]); z = $(c["hz"]) }
+  NR == 2 { x0 = x; y0 = y; z0 = z }
+  { d = (x - x0) * (x - x0) + (y - y0) * (y - y0) + (z - z0) * (z - z0); if (d > m) m = d; n++ }
   END { printf "HAP-ATTACK-DONE records=%d max_displacement_m2=%.15f\n", n, m }' /tmp/attack.csv
 t=0
 while [ $t -lt $((max_s * 10)) ]; do
