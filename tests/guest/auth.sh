@@ -52,7 +52,9 @@ awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) c[$i] = i; if (!c["hx"]) exit; next
   { x = $(c["hx"]); y = $(c["hy"]); z = $(c["hz"]) }
   NR == 2 { x0 = x; y0 = y; z0 = z }
   { d = (x - x0) * (x - x0) + (y - y0) * (y - y0) + (z - z0) * (z - z0); if (d > m) m = d; n++ }
-  END { printf "HAP-ATTACK-DONE records=%d max_displacement_m2=%.15f\n", n, m }' /tmp/attack.csv
+  { f = $(c["coupling_fx"]) * $(c["coupling_fx"]) + $(c["coupling_fy"]) * $(c["coupling_fy"]) + $(c["coupling_fz"]) * $(c["coupling_fz"]); if (f > cf) cf = f }
+  { if (int($(c["status"]) / 128) % 2) coupled++ }
+  END { printf "HAP-ATTACK-DONE records=%d max_displacement_m2=%.15f max_coupling_n2=%.15f coupled=%d\n", n, m, cf, coupled + 0 }' /tmp/attack.csv
 t=0
 while [ $t -lt $((max_s * 10)) ]; do
   opened=$(stat_value sessions_opened); cur=$(stat_value session)

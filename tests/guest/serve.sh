@@ -38,7 +38,6 @@ echo "HAP-PROTO-BEGIN"; cat /run/proto_interface.stats 2>/dev/null; echo "HAP-PR
 # The guest's UDP counters (the bridge's socket is the only one): datagrams
 # delivered to it and dropped for a full receive buffer.
 echo "HAP-UDP $(awk '/^Udp:/ { if (!h) { split($0, k); h = 1 } else { for (i = 2; i <= NF; i++) printf "%s=%s ", k[i], $i } }' /proc/net/snmp)"
-echo "HAP-PROTO-LOG-BEGIN"; grep -v '^[a-z_0-9]*: [0-9]*$' /run/proto_interface.log 2>/dev/null | head -20; echo "HAP-PROTO-LOG-END"
 # The stop request runs the fail-safe, which closes the position log: the
 # recorder drains it and exits.
 echo 1 > /dev/hap_stop
