@@ -61,7 +61,7 @@ trap stop_guest EXIT
 for _ in $(seq 3000); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
 grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; die "the guest did not get ready"; }
 echo "# guest kernel: $(sed -n 's/^HAPTEST-KERNEL //p' "$qlog" | tr -d '\r' | head -1)"
-echo "# guest ready (plain TCG, servo period ${period_us} us); UDP 127.0.0.1:$port -> guest:5000"
+echo "# guest ready ($(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' "$qlog" | head -1), servo period ${period_us} us); UDP 127.0.0.1:$port -> guest:5000"
 
 if [ "${HAP_E2E_NO_HOSTILE:-0}" = 1 ]; then true & else
 python3 "$ROOT/tests/e2e/udp_garbage.py" 127.0.0.1 "$port" 10000 3 > "$results/garbage.txt" 2>&1 &
