@@ -110,7 +110,7 @@ check_num "the coupled sphere followed (m)" "$(sv coupled_travel_m)" '>=' 0.02
 # 20 N, so no error held by the spring exceeds 20 N / K_t.
 kt=$(awk -v p="$period_us" 'BEGIN { k = 203 * 1000 / p; if (k > 1500) k = 1500; printf "%.1f", k }')
 elim=$(awk -v f="$(sv coupling_force_mean_n)" -v k="$kt" 'BEGIN { if (f != "") printf "%.5f", f / k + 0.002 }')
-echo "# FIGURE coupling error mean $(sv coupling_error_mean_m) m, max $(sv coupling_error_max_m) m; mean coupling force $(sv coupling_force_mean_n) N (K_t $kt N/m); free sphere (no contact): mean $(sv free_coupling_error_mean_m) m over $(sv free_samples) cycles, handle speed $(sv free_handle_speed_mean_m_s) m/s"
+echo "# FIGURE coupling error mean $(sv coupling_error_mean_m) m, max $(sv coupling_error_max_m) m over the cycles with a fresh loop ($(sv stale_cycles) client cycles with an answer older than 100 ms left the sphere to its drag); mean coupling force $(sv coupling_force_mean_n) N (K_t $kt N/m); free sphere (no contact): mean $(sv free_coupling_error_mean_m) m over $(sv free_samples) cycles, handle speed $(sv free_handle_speed_mean_m_s) m/s"
 check_num "coupling error, mean (m; mean force / K_t + 2 mm)" "$(sv coupling_error_mean_m)" '<=' "$elim"
 check_num "coupling error, max (m; 20 N / K_t)" "$(sv coupling_error_max_m)" '<' "$(awk -v k="$kt" 'BEGIN { printf "%.5f", 20 / k }')"
 [ "$(cat "$results/second_client.rc" 2>/dev/null)" != 0 ] && ok "a second client from another source port is refused" || nok "the second client was not refused: $(tail -2 "$results/second_client.txt")"

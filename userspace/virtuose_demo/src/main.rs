@@ -463,6 +463,7 @@ fn run(args: Args) -> Result<(), String> {
     let mut requests = 0u64;
     let mut held = 0u64;
     let mut silent = false;
+    let mut stale = 0u64;
     let answers0 = vc.link_stats().answers;
 
     loop {
@@ -487,13 +488,18 @@ fn run(args: Args) -> Result<(), String> {
             force = V3::new(f[0] as f64, f[1] as f64, f[2] as f64);
         }
         let power = vc.get_power_on().unwrap_or(false);
-        // A force older than the controller's own link fade (100 ms) is no
-        // longer the coupling's: the sphere is left to its drag.
-        let applied = if t - last_answer_t > 0.1 {
-            V3::zeros()
-        } else {
-            force
-        };
+        // The force is the spring's pull toward the VPr it was computed
+        // for. If that VPr left more than 100 ms ago (the round trip of the
+        // last echoed one plus the time since the last answer: the
+        // controller's own link-fade horizon), the loop is delayed beyond
+        // what the drag keeps passive (2·drag/K ≈ 0.1 s): it is not applied
+        // and the sphere is left to its drag (`stale_cycles`).
+        let loop_age_s = vc.link_stats().rtt_ms_last / 1000.0 + (t - last_answer_t);
+        let fresh = loop_age_s <= 0.1;
+        let applied = if fresh { force } else { V3::zeros() };
+        if !fresh {
+            stale += 1;
+        }
         world.step(dt, applied);
         let a = world.a;
         let sp = [
@@ -555,7 +561,7 @@ fn run(args: Args) -> Result<(), String> {
             silent = true;
             break;
         }
-        if t > 1.0 {
+        if t > 1.0 && fresh {
             let e = (handle - a.pos).norm();
             err_sum += e;
             err_n += 1;
@@ -697,6 +703,7 @@ fn run(args: Args) -> Result<(), String> {
         }
     );
     let _ = writeln!(summary, "controller_silent: {}", u8::from(silent));
+    let _ = writeln!(summary, "stale_cycles: {stale}");
     let _ = writeln!(summary, "handle_travel_m: {handle_travel:.5}");
     let _ = writeln!(summary, "coupled_travel_m: {coupled_travel:.5}");
     if let Some(b) = &bench {
