@@ -413,7 +413,7 @@ fn authenticated(
         Decision::Forward => {
             // The controller's nonce is used by an open_session only: drawing
             // it for every frame cost an open/read/close of /dev/urandom per
-            // datagram (most of the bridge's v2 cost in an emulated guest).
+            // verified datagram.
             let ns = if i.kind == Kind::Open {
                 match hap_auth::fresh_nonce() {
                     Ok(n) => n,
