@@ -441,3 +441,23 @@ fn stiffer_gains_on_a_mode_switch_keep_the_force_and_inject_nothing() {
     }
     assert!(min_e > -1e-6, "{min_e}");
 }
+
+/// Seed 1003 at 10 ms: the coupling starts 3.5 cm stretched with a free
+/// client mass on the target, and the envelope rises in 0.2 steps. The
+/// observer used to decide whether it could pay a rise before adding the
+/// period's port energy (here −5.4e-4 J flowing out to the client mass), so
+/// it paid a rise it could not afford and later fell to −7.3e-6 J while the
+/// motor-side ledger stayed at +5.9e-3 J.
+#[test]
+fn envelope_rise_is_paid_from_the_observer_after_the_period_energy() {
+    let figs = campaign::run(1003, 10_000, 6_000);
+    figs.print("seed 1003, 10 ms");
+    assert!(figs.coupled_cycles > 1000);
+    assert!(figs.worst_ledger > -1e-6, "{}", figs.worst_ledger);
+    assert!(
+        figs.worst_observer > hap_core::control::PO_TOLERANCE.to_f64(),
+        "{}",
+        figs.worst_observer
+    );
+    assert_eq!(figs.passivity_cycles, 0);
+}
