@@ -379,7 +379,7 @@ fn spring_energy(g: &Gains, d: Vec3, e: Vec3) -> Fx {
 
 /// Per-component bounds of the coupling errors: position m, speed m/s,
 /// angular speed rad/s (far beyond the arm's reach and speeds).
-const D_CLAMP: Fx = Fx::from_int(4);
+pub const D_CLAMP: Fx = Fx::from_int(4);
 const V_CLAMP: Fx = Fx::from_int(100);
 const W_CLAMP: Fx = Fx::from_int(1000);
 
@@ -612,8 +612,14 @@ pub fn cartesian_control(
             // displacement: the exact work at the motors. Target port: the
             // client's pose is a sampled signal, so the spring's change on
             // its step is the trapezoid of the wrench before and after it.
-            let dp_t = t_pos.sub(ctrl.prev_target.position);
-            let dth_t = t_rot.error_vector(&ctrl.prev_target.orientation);
+            // The step as the spring sees it: the change of the (bounded)
+            // error it made, so a target beyond `D_CLAMP` moves no energy
+            // the spring does not store or give back.
+            let dp_t = d.sub(clamp_vec(ctrl.prev_target.position.sub(p_h), D_CLAMP));
+            let dth_t = e.sub(clamp_vec(
+                ctrl.prev_target.orientation.error_vector(&q_h),
+                Fx::TWO,
+            ));
             let pw = ctrl.prev_wrench;
             let avg_f = pw.force.add(w_step.force).scale(Fx::HALF);
             let avg_t = pw.torque.add(w_step.torque).scale(Fx::HALF);
