@@ -267,8 +267,19 @@ fn run(
         }
     };
 
+    // Answering every period with a session open, like the controller's
+    // cycle: the socket is non-blocking, the frames that arrived are
+    // handled, then the thread sleeps until the next answer (a sleep is
+    // precise; a socket's receive timeout is rounded up to the kernel's
+    // tick, which would answer every few ms instead).
+    let mut nonblocking = false;
     while !stop.load(Ordering::SeqCst) {
-        if cfg.answer_every_period {
+        let periodic = cfg.answer_every_period && client.is_some();
+        if periodic != nonblocking {
+            let _ = sock.set_nonblocking(periodic);
+            nonblocking = periodic;
+        }
+        if periodic {
             if let Some(c) = client {
                 let now = Instant::now();
                 if now >= next_answer {
@@ -278,16 +289,14 @@ fn run(
                         next_answer = now + period;
                     }
                 }
-                let wait = next_answer
-                    .saturating_duration_since(Instant::now())
-                    .max(Duration::from_micros(50));
-                let _ = sock.set_read_timeout(Some(wait));
-            } else {
-                let _ = sock.set_read_timeout(Some(Duration::from_millis(50)));
             }
         }
         let (n, src) = match sock.recv_from(&mut buf) {
             Ok(x) => x,
+            Err(e) if periodic && e.kind() == std::io::ErrorKind::WouldBlock => {
+                std::thread::sleep(next_answer.saturating_duration_since(Instant::now()));
+                continue;
+            }
             Err(_) => continue,
         };
         let Ok((h, frame)) = decode(&buf[..n]) else {

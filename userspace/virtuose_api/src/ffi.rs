@@ -1462,7 +1462,8 @@ pub unsafe extern "C" fn virtGetArticularSpeed(vc: *mut c_void, speed: *mut c_fl
 
 // ---- periodic callback ----------------------------------------------------------
 
-/// Register `f(vc, arg)`, called every `*period` seconds by virtStartLoop.
+/// Register `f(vc, arg)`, called every `*period` seconds of the controller's
+/// clock by virtStartLoop (see `periodic_loop`).
 ///
 /// # Safety
 /// `vc` is NULL or live; `period` is NULL or readable; `f` stays callable
@@ -1504,18 +1505,51 @@ struct LoopArgs {
     period: Duration,
 }
 
-/// The callback loop: absolute deadlines every period; after each call, in
-/// COMMAND_TYPE_IMPEDANCE, the force command is streamed. A call (with the
-/// streaming) that ends after the next deadline is an overrun: latched in
+/// Cycles of the controller's servo between two calls of a periodic
+/// function of `period` (at least 1).
+fn cycles_per_call(period: Duration, servo_period_us: u32) -> u32 {
+    let servo = u128::from(servo_period_us.max(1));
+    let n = (period.as_micros() + servo / 2) / servo;
+    u32::try_from(n).unwrap_or(u32::MAX).max(1)
+}
+
+/// `a` is at or after `b` on the controller's wrapping 32-bit cycle counter.
+fn cycle_reached(a: u32, b: u32) -> bool {
+    (a.wrapping_sub(b) as i32) >= 0
+}
+
+/// The callback loop, on the controller's clock: the function is called
+/// when an answer shows that one period of servo cycles has passed since
+/// the previous call (every answer when the period is the servo period), so
+/// the application runs, and sends its set-points, at the rate the
+/// controller serves, not faster: a controller slower than its nominal
+/// period (emulation, a loaded host) is not flooded with set-points it
+/// cannot use. After each call, in COMMAND_TYPE_IMPEDANCE, the force command
+/// is streamed. A call (with the streaming) that ends when the controller
+/// has already reached the next call's cycle is an overrun: latched in
 /// `VIRT_ALARM_CALLBACK_OVERRUN`, counted, and the missed periods skipped.
+/// Without answers (link lost), the function is not called.
 fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
     // SAFETY: virtClose stops this thread before freeing the context.
     let c = unsafe { &*(a.ctx as *const VirtContextS) };
-    let mut next = Instant::now() + a.period;
+    let (waiter, servo_us) = {
+        let vc = c.session();
+        (vc.answer_waiter(), vc.link_stats().period_us)
+    };
+    let step = cycles_per_call(a.period, servo_us);
+    // Each wait is bounded so that a stop request is seen promptly.
+    let slice = Duration::from_millis(20);
+    let (mut gen, _) = waiter.current();
+    let mut due: Option<u32> = None;
     while !stop.load(Ordering::SeqCst) {
-        let now = Instant::now();
-        if next > now {
-            std::thread::sleep(next - now);
+        let Some((g, cycle)) = waiter.wait_newer(gen, slice) else {
+            continue;
+        };
+        gen = g;
+        if let Some(d) = due {
+            if !cycle_reached(cycle, d) {
+                continue;
+            }
         }
         if stop.load(Ordering::SeqCst) {
             break;
@@ -1526,15 +1560,18 @@ fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
         if let Err(e) = c.stream_force() {
             set_error(&e);
         }
-        let end = Instant::now();
-        next += a.period;
-        if end > next {
-            c.overrun_latched.store(true, Ordering::SeqCst);
-            c.overruns.fetch_add(1, Ordering::SeqCst);
-            while next <= end {
-                next += a.period;
+        let mut next = cycle.wrapping_add(step);
+        let (g_now, now) = waiter.current();
+        if let Some(now) = now {
+            if g_now != gen && cycle_reached(now, next) {
+                c.overrun_latched.store(true, Ordering::SeqCst);
+                c.overruns.fetch_add(1, Ordering::SeqCst);
+                while cycle_reached(now, next) {
+                    next = next.wrapping_add(step);
+                }
             }
         }
+        due = Some(next);
     }
 }
 

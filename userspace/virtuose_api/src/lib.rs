@@ -161,7 +161,8 @@ pub type Result<T> = std::result::Result<T, VirtError>;
 /// Timeouts, retries and the key.
 #[derive(Clone, Copy, Debug)]
 pub struct Options {
-    /// How long to wait for the SessionAck / Ack of one attempt.
+    /// How long to wait for the Ack of one attempt, and for the SessionAck
+    /// of the first OpenSession (each further one waits twice as long).
     pub reply_timeout: Duration,
     /// Attempts for each acknowledged request (open, configuration, power).
     pub attempts: u32,
@@ -348,6 +349,44 @@ pub struct VirtContext {
     closed: bool,
 }
 
+/// Waits for the controller's answers ([`VirtContext::answer_waiter`]).
+#[derive(Clone)]
+pub struct AnswerWaiter {
+    inner: Arc<Inner>,
+}
+
+impl AnswerWaiter {
+    /// The answer generation (bumped on every accepted answer) and the last
+    /// answer's servo cycle, if any answer has arrived.
+    pub fn current(&self) -> (u64, Option<u32>) {
+        let st = self.inner.lock();
+        (st.answer_gen, st.answer.map(|a| a.cycle))
+    }
+
+    /// Wait until an answer newer than generation `gen` has arrived (at once
+    /// if it already has), up to `timeout`: its generation and servo cycle,
+    /// or `None` on timeout.
+    pub fn wait_newer(&self, gen: u64, timeout: Duration) -> Option<(u64, u32)> {
+        let deadline = Instant::now() + timeout;
+        let mut st = self.inner.lock();
+        loop {
+            if st.answer_gen != gen {
+                if let Some(a) = st.answer {
+                    return Some((st.answer_gen, a.cycle));
+                }
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return None;
+            }
+            st = match self.inner.cond.wait_timeout(st, deadline - now) {
+                Ok((g, _)) => g,
+                Err(p) => p.into_inner().0,
+            };
+        }
+    }
+}
+
 /// Split `"address?key=/path"` into the address and the key file (the only
 /// option); an address without `?` has none.
 pub fn split_options(s: &str) -> Result<(&str, Option<&str>)> {
@@ -496,8 +535,12 @@ impl VirtContext {
             speed: Twist::default(),
             closed: false,
         };
-        // OpenSession, retried with the same nonce until the SessionAck.
+        // OpenSession, retried until the SessionAck; each attempt waits
+        // twice as long as the one before (a controller that is slow to
+        // answer its first handshake, e.g. on a loaded or emulated machine,
+        // is not asked again and again, each retry opening a new session).
         let mut ok = false;
+        let mut wait = opts.reply_timeout;
         for _ in 0..opts.attempts.max(1) {
             vc.inner.send(
                 &Frame::OpenSession {
@@ -505,7 +548,8 @@ impl VirtContext {
                 },
                 0,
             )?;
-            let deadline = Instant::now() + opts.reply_timeout;
+            let deadline = Instant::now() + wait;
+            wait = wait.saturating_mul(2);
             let mut st = vc.inner.lock();
             loop {
                 if let Some(reason) = st.handshake_refused {
@@ -792,6 +836,14 @@ impl VirtContext {
             };
         }
         true
+    }
+
+    /// A handle that waits for the controller's answers without holding
+    /// this context (another thread may use the context meanwhile).
+    pub fn answer_waiter(&self) -> AnswerWaiter {
+        AnswerWaiter {
+            inner: self.inner.clone(),
+        }
     }
 
     /// Rate, loss and round-trip time measured so far.

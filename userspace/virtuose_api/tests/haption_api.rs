@@ -345,6 +345,92 @@ fn periodic_loop_calls_back_streams_and_stops() {
     }
 }
 
+/// Run the loop at `period` for `ms` milliseconds; (calls, answers sent by
+/// the controller meanwhile).
+fn loop_for(p: &FakePeer, vc: *mut c_void, period: f32, ms: u64) -> (u32, u64) {
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 0,
+        stop_after: 0,
+    };
+    let arg = &counter as *const Counter as *mut c_void;
+    // SAFETY: vc is live; counter outlives the loop (stopped below).
+    unsafe {
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        let a0 = p.stats().answers_sent;
+        assert_eq!(virtStartLoop(vc), 0);
+        std::thread::sleep(Duration::from_millis(ms));
+        assert_eq!(virtStopLoop(vc), 0);
+        let answers = p.stats().answers_sent - a0;
+        assert_eq!(counter.errors.load(Ordering::SeqCst), 0);
+        (counter.calls.load(Ordering::SeqCst), answers)
+    }
+}
+
+#[test]
+fn the_periodic_loop_follows_the_controllers_answers() {
+    // A controller with a 4 ms servo period; the application asks for 1 ms.
+    let mut p = FakePeer::start(FakePeerConfig {
+        center: [0.45, 0.05, 0.25],
+        amplitude: [0.0; 3],
+        answer_every_period: true,
+        period_us: 4000,
+        twist_every: 4,
+        ..Default::default()
+    })
+    .unwrap();
+    let vc = open(&p);
+    // SAFETY: vc is live.
+    unsafe { assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0) };
+    // At most one call (and one set-point) per answer, not one per host
+    // millisecond: ~100 answers in 400 ms.
+    let v0 = p.stats().frames.get("vpr_stream").copied().unwrap_or(0);
+    let (calls, answers) = loop_for(&p, vc, 0.001, 400);
+    let sent = p.stats().frames.get("vpr_stream").copied().unwrap_or(0) - v0;
+    assert!(calls >= 20, "{calls} calls for {answers} answers");
+    assert!(
+        calls as u64 <= answers,
+        "{calls} calls for {answers} answers"
+    );
+    assert!(
+        sent <= answers + 1,
+        "{sent} set-points for {answers} answers"
+    );
+    // A period of two servo cycles: every other answer.
+    let (calls, answers) = loop_for(&p, vc, 0.008, 400);
+    assert!(calls >= 10, "{calls} calls for {answers} answers");
+    assert!(
+        2 * calls as u64 <= answers + 2,
+        "{calls} calls for {answers} answers"
+    );
+    // No answers (the controller is gone): no calls.
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 0,
+        stop_after: 0,
+    };
+    let period = 0.004f32;
+    let arg = &counter as *const Counter as *mut c_void;
+    // SAFETY: vc is live; counter outlives the loop.
+    unsafe {
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        assert_eq!(virtStartLoop(vc), 0);
+        std::thread::sleep(Duration::from_millis(100));
+        p.stop();
+        std::thread::sleep(Duration::from_millis(20));
+        let before = counter.calls.load(Ordering::SeqCst);
+        assert!(before >= 5, "{before} calls");
+        std::thread::sleep(Duration::from_millis(200));
+        assert_eq!(counter.calls.load(Ordering::SeqCst), before);
+        assert_eq!(virtStopLoop(vc), 0);
+        let _ = virtClose(vc);
+    }
+}
+
 #[test]
 fn a_callback_that_overruns_raises_the_alarm() {
     let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
