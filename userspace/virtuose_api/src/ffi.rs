@@ -16,7 +16,7 @@ use std::ffi::{c_char, c_float, c_int, c_uint, c_ushort, c_void, CStr, CString};
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::thread::{JoinHandle, ThreadId};
 use std::time::{Duration, Instant};
 
@@ -225,7 +225,10 @@ impl Worker {
 
 /// Opaque handle given to C (`VirtContext`).
 pub struct VirtContextS {
-    vc: Mutex<VirtContext>,
+    /// Requests (an acknowledged round trip) and readings take it shared,
+    /// so one thread's request does not stall another's readings and
+    /// set-points; only closing and the factors take it exclusive.
+    vc: RwLock<VirtContext>,
     st: Mutex<ApiState>,
     periodic_loop: Mutex<Option<Worker>>,
     recorder: Mutex<Option<Worker>>,
@@ -241,8 +244,18 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl VirtContextS {
-    fn session(&self) -> MutexGuard<'_, VirtContext> {
-        lock(&self.vc)
+    fn session(&self) -> RwLockReadGuard<'_, VirtContext> {
+        match self.vc.read() {
+            Ok(g) => g,
+            Err(p) => p.into_inner(),
+        }
+    }
+
+    fn session_mut(&self) -> RwLockWriteGuard<'_, VirtContext> {
+        match self.vc.write() {
+            Ok(g) => g,
+            Err(p) => p.into_inner(),
+        }
     }
 
     fn state(&self) -> MutexGuard<'_, ApiState> {
@@ -261,8 +274,10 @@ impl VirtContextS {
             };
             match r {
                 Err(VirtError::NoData) if Instant::now() < deadline => {
-                    let vc = self.session();
-                    vc.wait_answer(Duration::from_millis(20));
+                    // Wait without holding the session (the other thread
+                    // of the context keeps using it).
+                    let w = self.session().answer_waiter();
+                    w.wait_newer(w.current().0, Duration::from_millis(20));
                 }
                 Err(VirtError::NoData) => {
                     return Err(ApiError::new(
@@ -324,7 +339,7 @@ impl VirtContextS {
         let handle = self.read(|v| v.get_position())?;
         let twist = self.read(|v| v.get_speed()).unwrap_or([0.0; 6]);
         let w = kin::saturate(&wrench, sat.0, sat.1);
-        let mut vc = self.session();
+        let vc = self.session();
         let (k_lin, k_rot) = self.gains(&vc, mass, ts);
         let target = kin::force_setpoint(&frames, &handle, &w, k_lin, k_rot);
         vc.set_speed(&twist)?;
@@ -464,7 +479,7 @@ pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut c_void {
             clear_error();
             let timeout_s = vc.options().reply_timeout.as_secs_f32() * vc.options().attempts as f32;
             let b = Box::new(VirtContextS {
-                vc: Mutex::new(vc),
+                vc: RwLock::new(vc),
                 st: Mutex::new(ApiState {
                     timeout_s,
                     ..Default::default()
@@ -512,7 +527,7 @@ pub unsafe extern "C" fn virtClose(vc: *mut c_void) -> c_int {
     // SAFETY: live pointer from Box::into_raw, per the contract.
     let b = unsafe { Box::from_raw(vc as *mut VirtContextS) };
     b.stop_workers();
-    let r = b.session().close();
+    let r = b.session_mut().close();
     status_of(r.map_err(ApiError::from))
 }
 
@@ -647,7 +662,7 @@ pub unsafe extern "C" fn virtSetTimeoutValue(vc: *mut c_void, t: c_float) -> c_i
                 ));
             }
             {
-                let mut s = c.session();
+                let mut s = c.session_mut();
                 let mut o = s.options();
                 let attempts = o.attempts.max(1);
                 o.reply_timeout = Duration::from_secs_f32(t / attempts as f32);
@@ -862,7 +877,7 @@ pub unsafe extern "C" fn virtSetForceFactor(vc: *mut c_void, k: c_float) -> c_in
     // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
-            c.session().set_force_factor(k)?;
+            c.session_mut().set_force_factor(k)?;
             c.state().frames.force_factor = k as f64;
             Ok(())
         })
@@ -884,7 +899,7 @@ pub unsafe extern "C" fn virtSetSpeedFactor(vc: *mut c_void, k: c_float) -> c_in
     // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
-            c.session().set_speed_factor(k)?;
+            c.session_mut().set_speed_factor(k)?;
             c.state().frames.speed_factor = k as f64;
             Ok(())
         })
@@ -1113,19 +1128,10 @@ pub unsafe extern "C" fn virtWaitPressButton(vc: *mut c_void, n: c_int) -> c_int
                 if s & bit != 0 {
                     return Ok(());
                 }
-                // Wait on the session without holding its lock for long.
-                let got = {
-                    let deadline = Instant::now() + timeout;
-                    let mut got = false;
-                    while Instant::now() < deadline {
-                        if c.session().wait_answer(Duration::from_millis(20)) {
-                            got = true;
-                            break;
-                        }
-                    }
-                    got
-                };
-                if !got {
+                // Wait for the next answer without holding the session
+                // (the periodic loop and other threads keep using it).
+                let w = c.session().answer_waiter();
+                if w.wait_newer(w.current().0, timeout).is_none() {
                     return Err(ApiError::new(
                         VIRT_E_TIME_OUT,
                         "controller silent while waiting for the button",
@@ -1219,7 +1225,7 @@ pub unsafe extern "C" fn virtSetPosition(vc: *mut c_void, pos: *const c_float) -
                     st.time_step,
                 )
             };
-            let mut vc = c.session();
+            let vc = c.session();
             let target = if added.iter().any(|v| *v != 0.0) {
                 let (k_lin, k_rot) = c.gains(&vc, mass, ts);
                 let w = kin::saturate(&added, sat.0, sat.1);

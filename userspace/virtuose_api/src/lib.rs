@@ -345,7 +345,8 @@ pub struct VirtContext {
     peer: SocketAddr,
     force_factor: f32,
     speed_factor: f32,
-    speed: Twist,
+    /// The virtual object's twist, sent with the next set_position.
+    speed: Mutex<Twist>,
     closed: bool,
 }
 
@@ -532,7 +533,7 @@ impl VirtContext {
             peer,
             force_factor: 1.0,
             speed_factor: 1.0,
-            speed: Twist::default(),
+            speed: Mutex::new(Twist::default()),
             closed: false,
         };
         // OpenSession, retried until the SessionAck; each attempt waits
@@ -653,7 +654,7 @@ impl VirtContext {
     }
 
     /// The client's simulation time step, s (`virtSetTimeStep`).
-    pub fn set_time_step(&mut self, dt: f32) -> Result<()> {
+    pub fn set_time_step(&self, dt: f32) -> Result<()> {
         if !(dt > 0.0 && dt <= 1.0) {
             return Err(VirtError::InvalidArgument(format!(
                 "time step {dt} not in (0, 1] s"
@@ -662,11 +663,11 @@ impl VirtContext {
         self.request(Frame::SetTimeStep(conv::fx("time step", dt)?))
     }
 
-    pub fn set_indexing_mode(&mut self, mode: IndexingMode) -> Result<()> {
+    pub fn set_indexing_mode(&self, mode: IndexingMode) -> Result<()> {
         self.request(Frame::SetIndexingMode(mode))
     }
 
-    pub fn set_command_type(&mut self, ty: CommandType) -> Result<()> {
+    pub fn set_command_type(&self, ty: CommandType) -> Result<()> {
         self.request(Frame::SetCommandType(ty))
     }
 
@@ -701,12 +702,12 @@ impl VirtContext {
     }
 
     /// World → arm base, `[x,y,z,qx,qy,qz,qw]`.
-    pub fn set_base_frame(&mut self, pose: &[f32; 7]) -> Result<()> {
+    pub fn set_base_frame(&self, pose: &[f32; 7]) -> Result<()> {
         self.request(Frame::SetBaseFrame(conv::pose_from("base frame", pose)?))
     }
 
     /// World → observer, `[x,y,z,qx,qy,qz,qw]`.
-    pub fn set_observation_frame(&mut self, pose: &[f32; 7]) -> Result<()> {
+    pub fn set_observation_frame(&self, pose: &[f32; 7]) -> Result<()> {
         self.request(Frame::SetObservationFrame(conv::pose_from(
             "observation frame",
             pose,
@@ -714,7 +715,7 @@ impl VirtContext {
     }
 
     /// Attach a virtual object of `mass` kg and principal inertia (kg·m²).
-    pub fn attach_vo(&mut self, mass: f32, inertia: [f32; 3]) -> Result<()> {
+    pub fn attach_vo(&self, mass: f32, inertia: [f32; 3]) -> Result<()> {
         if !(mass > 0.0 && mass.is_finite()) {
             return Err(VirtError::InvalidArgument(format!(
                 "mass {mass} must be > 0"
@@ -736,32 +737,39 @@ impl VirtContext {
         self.request(Frame::AttachVirtualObject(p))
     }
 
-    pub fn detach_vo(&mut self) -> Result<()> {
+    pub fn detach_vo(&self) -> Result<()> {
         self.request(Frame::DetachVirtualObject)
     }
 
     /// Arm supply power request (`virtSetPowerOn`).
-    pub fn set_power_on(&mut self, on: bool) -> Result<()> {
+    pub fn set_power_on(&self, on: bool) -> Result<()> {
         self.request(Frame::PowerRequest(on))
     }
 
     /// Twist of the virtual object, `[vx,vy,vz,wx,wy,wz]`; sent with the
     /// next [`set_position`](Self::set_position) (call it first).
-    pub fn set_speed(&mut self, twist: &[f32; 6]) -> Result<()> {
+    pub fn set_speed(&self, twist: &[f32; 6]) -> Result<()> {
         self.check_open()?;
-        self.speed = conv::twist_from("speed", twist)?;
+        let t = conv::twist_from("speed", twist)?;
+        *match self.speed.lock() {
+            Ok(g) => g,
+            Err(p) => p.into_inner(),
+        } = t;
         Ok(())
     }
 
     /// Pose of the virtual object, `[x,y,z,qx,qy,qz,qw]`: streams one
     /// VprStream frame (pose + the last speed given). Not acknowledged.
-    pub fn set_position(&mut self, pose: &[f32; 7]) -> Result<()> {
+    pub fn set_position(&self, pose: &[f32; 7]) -> Result<()> {
         self.check_open()?;
         let pose: Pose = conv::pose_from("position", pose)?;
         self.inner.send(
             &Frame::VprStream {
                 pose,
-                twist: self.speed,
+                twist: *match self.speed.lock() {
+                    Ok(g) => g,
+                    Err(p) => p.into_inner(),
+                },
             },
             0,
         )?;

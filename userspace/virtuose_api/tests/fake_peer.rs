@@ -103,7 +103,7 @@ fn loss_and_duplicates_are_measured() {
         ..Default::default()
     })
     .unwrap();
-    let mut vc = VirtContext::open_with(&peer.address(), quick()).unwrap();
+    let vc = VirtContext::open_with(&peer.address(), quick()).unwrap();
     for _ in 0..500 {
         vc.set_position(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
             .unwrap();
@@ -120,7 +120,7 @@ fn loss_and_duplicates_are_measured() {
 #[test]
 fn round_trips_are_recorded_per_sample() {
     let peer = FakePeer::start(FakePeerConfig::default()).unwrap();
-    let mut vc = VirtContext::open_with(&peer.address(), quick()).unwrap();
+    let vc = VirtContext::open_with(&peer.address(), quick()).unwrap();
     let mut got = Vec::new();
     vc.drain_rtt(&mut got);
     assert!(got.is_empty(), "nothing recorded before record_rtt(true)");

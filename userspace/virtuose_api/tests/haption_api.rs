@@ -432,6 +432,53 @@ fn the_periodic_loop_follows_the_controllers_answers() {
 }
 
 #[test]
+fn the_loop_runs_while_another_thread_waits_for_a_button() {
+    let mut p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 0,
+        stop_after: 0,
+    };
+    let period = 0.001f32;
+    let addr = vc as usize;
+    // SAFETY: vc is live until virtClose below, after the waiting thread
+    // and the loop have ended; counter outlives the loop.
+    unsafe {
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        assert_eq!(virtSetTimeoutValue(vc, 0.3), 0);
+        let arg = &counter as *const Counter as *mut c_void;
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        assert_eq!(virtStartLoop(vc), 0);
+        // No button is pressed: the waiting thread blocks while the
+        // controller answers.
+        let waiter = std::thread::spawn(move || {
+            // SAFETY: the context outlives this thread (joined below).
+            let r = unsafe { virtWaitPressButton(addr as *mut c_void, 0) };
+            (r, virtGetErrorCode(addr as *mut c_void))
+        });
+        std::thread::sleep(Duration::from_millis(100));
+        let (c0, a0) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
+        std::thread::sleep(Duration::from_millis(300));
+        let (c1, a1) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
+        assert!(!waiter.is_finished(), "returned without a press");
+        // The loop kept its pace: a call for (nearly) every answer.
+        let (calls, answers) = (u64::from(c1 - c0), a1 - a0);
+        assert!(answers >= 50, "{answers} answers");
+        assert!(2 * calls >= answers, "{calls} calls for {answers} answers");
+        // The controller goes silent: the wait ends with a time-out.
+        p.stop();
+        let (r, code) = waiter.join().unwrap();
+        assert_eq!((r, code), (-1, VIRT_E_TIME_OUT));
+        assert_eq!(virtStopLoop(vc), 0);
+        assert_eq!(counter.errors.load(Ordering::SeqCst), 0);
+        let _ = virtClose(vc);
+    }
+}
+
+#[test]
 fn a_callback_that_overruns_raises_the_alarm() {
     let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
     let vc = open(&p);
