@@ -219,6 +219,7 @@ read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background $kflag --tim
 trap 'kill $qpid 2>/dev/null' EXIT
 for _ in $(seq 1200); do grep -q HAP-READY "$qlog" 2>/dev/null && break; kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
 grep -q HAP-READY "$qlog" || { tail -30 "$qlog"; nok "the guest did not get ready"; finish; }
+echo "# FIGURE guest ready after $(( $(date +%s) - t_guest )) s (boot, insmod, bridge)"
 echo "# guest kernel: $(sed -n 's/^HAPTEST-KERNEL //p' "$qlog" | tr -d '\r' | head -1)"
 echo "# guest ready ($(sed -n 's/.*hap\.mode=\([^ ]*\).*/\1/p' "$qlog" | head -1), servo period ${period_us} us); UDP 127.0.0.1:$port -> guest:5000, key from HAP_KEY_FILE"
 t_prog=$(date +%s.%N)

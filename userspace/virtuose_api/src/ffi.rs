@@ -308,10 +308,11 @@ impl VirtContextS {
         Ok(q)
     }
 
-    /// The coupling stiffnesses the controller uses (arm units).
+    /// The coupling stiffnesses the controller uses (arm units): its gains
+    /// for the servo period (`Gains::for_period`), the translational one
+    /// capped at `m / ts²` for a virtual object of mass `m` (VIRTMECH).
     fn gains(&self, vc: &VirtContext, vo_mass: Option<f32>, ts: f32) -> (f64, f64) {
-        let period_us = vc.link_stats().period_us.max(1);
-        let g = Gains::for_period(Fx::from_ratio(period_us as i64, 1_000_000));
+        let g = Self::period_gains(vc);
         let mut k_lin = g.k_lin.to_f64();
         if let Some(m) = vo_mass {
             let ts = ts as f64;
@@ -322,10 +323,35 @@ impl VirtContextS {
         (k_lin, g.k_rot.to_f64())
     }
 
+    fn period_gains(vc: &VirtContext) -> Gains {
+        let period_us = vc.link_stats().period_us.max(1);
+        Gains::for_period(Fx::from_ratio(period_us as i64, 1_000_000))
+    }
+
+    /// The translational coupling (stiffness N/m, damping N·s/m) in the
+    /// client's units (force factor, speed factor), as the controller
+    /// applies it in the current command type.
+    fn simulation_coupling(&self) -> (f64, f64) {
+        let (frames, cmd, mass, ts) = {
+            let st = self.state();
+            (st.frames, st.command, st.vo_mass, st.time_step)
+        };
+        let vc = self.session();
+        let mass = if cmd == COMMAND_TYPE_VIRTMECH {
+            mass
+        } else {
+            None
+        };
+        let (k, _) = self.gains(&vc, mass, ts);
+        let b = Self::period_gains(&vc).b_lin.to_f64();
+        let scale = frames.force_factor / frames.speed_factor;
+        (k * scale, b * scale)
+    }
+
     /// COMMAND_TYPE_IMPEDANCE: stream the coupling set-point that applies
     /// the commanded force (virtSetForce + virtAddForce) to the handle.
     fn stream_force(&self) -> R<()> {
-        let (frames, wrench, sat, mass, ts) = {
+        let (frames, wrench, sat, ts) = {
             let st = self.state();
             if st.command != COMMAND_TYPE_IMPEDANCE || !st.force_feedback {
                 return Ok(());
@@ -334,13 +360,14 @@ impl VirtContextS {
             for (a, b) in w.iter_mut().zip(st.added_force.iter()) {
                 *a += *b;
             }
-            (st.frames, w, st.saturation, st.vo_mass, st.time_step)
+            (st.frames, w, st.saturation, st.time_step)
         };
         let handle = self.read(|v| v.get_position())?;
         let twist = self.read(|v| v.get_speed()).unwrap_or([0.0; 6]);
         let w = kin::saturate(&wrench, sat.0, sat.1);
         let vc = self.session();
-        let (k_lin, k_rot) = self.gains(&vc, mass, ts);
+        // (The controller's mass cap is for VIRTMECH only.)
+        let (k_lin, k_rot) = self.gains(&vc, None, ts);
         let target = kin::force_setpoint(&frames, &handle, &w, k_lin, k_rot);
         vc.set_speed(&twist)?;
         vc.set_position(&target)?;
@@ -1355,6 +1382,33 @@ pub unsafe extern "C" fn virtEnableForceFeedback(vc: *mut c_void, enable: c_int)
     }
 }
 
+/// Stiffness (N/m, client units: × force factor ÷ speed factor) of the
+/// coupling between the handle and the virtual object: the controller's
+/// translational gain for its servo period, capped at `m / ts²` in VIRTMECH
+/// with an attached object of mass `m`.
+///
+/// # Safety
+/// `vc` is NULL or live; `stiffness` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetSimulationStiffness(
+    vc: *mut c_void,
+    stiffness: *mut c_float,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(stiffness, c.simulation_coupling().0 as f32)) }
+}
+
+/// Damping (N·s/m, client units) of the coupling (see
+/// virtGetSimulationStiffness).
+///
+/// # Safety
+/// `vc` is NULL or live; `damping` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetSimulationDamping(vc: *mut c_void, damping: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(damping, c.simulation_coupling().1 as f32)) }
+}
+
 /// Handle pose, `float[7]`, world frame.
 ///
 /// # Safety
@@ -1909,8 +1963,6 @@ not_implemented! {
     virtForceShiftButton(force_shift: c_int);
     virtIsInShiftPosition(shift: *mut c_int);
     virtAttachQSVO(ks: *const c_float, bs: *const c_float);
-    virtGetSimulationStiffness(stiffness: *mut c_float);
-    virtGetSimulationDamping(damping: *mut c_float);
     virtSetArticularPosition(pos: *const c_float);
     virtSetArticularSpeed(speed: *const c_float);
     virtSetArticularForce(force: *const c_float);

@@ -454,9 +454,9 @@ fn the_loop_runs_while_another_thread_waits_for_a_button() {
         assert_eq!(virtStartLoop(vc), 0);
         // No button is pressed: the waiting thread blocks while the
         // controller answers.
+        // (The context outlives this thread: joined below.)
         let waiter = std::thread::spawn(move || {
-            // SAFETY: the context outlives this thread (joined below).
-            let r = unsafe { virtWaitPressButton(addr as *mut c_void, 0) };
+            let r = virtWaitPressButton(addr as *mut c_void, 0);
             (r, virtGetErrorCode(addr as *mut c_void))
         });
         std::thread::sleep(Duration::from_millis(100));
@@ -475,6 +475,47 @@ fn the_loop_runs_while_another_thread_waits_for_a_button() {
         assert_eq!(virtStopLoop(vc), 0);
         assert_eq!(counter.errors.load(Ordering::SeqCst), 0);
         let _ = virtClose(vc);
+    }
+}
+
+#[test]
+fn simulation_stiffness_and_damping_are_the_controllers_coupling() {
+    let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    let g = Gains::for_period(Fx::from_ratio(1000, 1_000_000));
+    let (k, b) = (g.k_lin.to_f64(), g.b_lin.to_f64());
+    let close = |a: f32, e: f64| ((a as f64) - e).abs() <= 1e-4 * e.abs().max(1.0);
+    let (mut ks, mut bs) = (0f32, 0f32);
+    // SAFETY: vc is live; the outputs are writable.
+    unsafe {
+        assert_eq!(virtGetSimulationStiffness(vc, &mut ks), 0);
+        assert_eq!(virtGetSimulationDamping(vc, &mut bs), 0);
+        assert!(close(ks, k) && close(bs, b), "{ks} {bs} vs {k} {b}");
+        assert_eq!(virtGetSimulationStiffness(vc, std::ptr::null_mut()), -1);
+        // Client units: force × 0.5, displacement × 2.
+        assert_eq!(virtSetForceFactor(vc, 0.5), 0);
+        assert_eq!(virtSetSpeedFactor(vc, 2.0), 0);
+        assert_eq!(virtGetSimulationStiffness(vc, &mut ks), 0);
+        assert_eq!(virtGetSimulationDamping(vc, &mut bs), 0);
+        assert!(close(ks, k * 0.25) && close(bs, b * 0.25), "{ks} {bs}");
+        // VIRTMECH with a light object and a long time step: the controller
+        // caps the stiffness at m / ts² (0.01 kg / (0.01 s)² = 100 N/m).
+        assert_eq!(virtSetForceFactor(vc, 1.0), 0);
+        assert_eq!(virtSetSpeedFactor(vc, 1.0), 0);
+        assert_eq!(virtSetTimeStep(vc, 0.01), 0);
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_VIRTMECH), 0);
+        let inertia = [1e-4f32; 3];
+        assert_eq!(virtAttachVO(vc, 0.01, inertia.as_ptr()), 0);
+        assert!(k > 100.0);
+        assert_eq!(virtGetSimulationStiffness(vc, &mut ks), 0);
+        assert!(close(ks, 100.0), "{ks}");
+        assert_eq!(virtGetSimulationDamping(vc, &mut bs), 0);
+        assert!(close(bs, b), "{bs}");
+        // The cap is VIRTMECH's: in IMPEDANCE the full stiffness.
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        assert_eq!(virtGetSimulationStiffness(vc, &mut ks), 0);
+        assert!(close(ks, k), "{ks}");
+        assert_eq!(virtClose(vc), 0);
     }
 }
 
