@@ -13,7 +13,8 @@
 # qemu: the module in QEMU (Debian's stock 7.3 rt-amd64 kernel, module built
 # with make STOCK=1; --self-built-kernel: the project's test kernel) and the
 # authenticated bridge, the program on the host over UDP, like
-# tests/e2e/link.sh (~1.5 min with warm builds).
+# tests/e2e/link.sh (2-3 min on a loaded 2-core machine, most of it the
+# emulated guest's boot).
 # Needs root for apt-get (libvisp-robot-dev) unless it is installed already.
 # Prints every check, then "visp-TARGET: N passed, N failed".
 set -uo pipefail
