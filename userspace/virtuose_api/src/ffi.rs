@@ -1750,9 +1750,10 @@ pub unsafe extern "C" fn virtTrajSetSamplingTimeStep(
     }
 }
 
-/// Record the handle pose every sampling step into the file of
-/// virtSetOutputFile: one line per sample, `t x y z qx qy qz qw cycle`
-/// (t in s from the start, world frame).
+/// Record the handle pose every sampling step of the controller's clock
+/// into the file of virtSetOutputFile: one line per sample,
+/// `t x y z qx qy qz qw cycle` (t in s of controller time from the first
+/// sample, world frame, the answer's servo cycle).
 ///
 /// # Safety
 /// `vc` is NULL or a live pointer from `virtOpen`.
@@ -1797,38 +1798,56 @@ pub unsafe extern "C" fn virtTrajRecordStart(vc: *mut c_void) -> c_int {
     }
 }
 
+/// The recorder, on the controller's clock like the callback loop: a sample
+/// when an answer reaches the next point of the sampling grid (every
+/// `period` of servo cycles from the first answer after the start); its
+/// time is the controller's, `(cycle - first cycle) × servo period`.
+/// Without answers, no samples.
 fn record(ctx: usize, file: std::fs::File, period: Duration, stop: Arc<AtomicBool>) {
     // SAFETY: virtClose / virtTrajRecordStop stop this thread first.
     let c = unsafe { &*(ctx as *const VirtContextS) };
     let mut out = std::io::BufWriter::new(file);
-    let t0 = Instant::now();
-    let mut next = t0;
+    let (waiter, servo_us) = {
+        let vc = c.session();
+        (vc.answer_waiter(), vc.link_stats().period_us.max(1))
+    };
+    let step = cycles_per_call(period, servo_us);
+    let (mut gen, _) = waiter.current();
+    let mut first: Option<u32> = None;
+    let mut due = 0u32;
     let mut n: u64 = 0;
     while !stop.load(Ordering::SeqCst) && n < TRAJ_MAX_SAMPLES {
+        let Some((g, _)) = waiter.wait_newer(gen, Duration::from_millis(20)) else {
+            continue;
+        };
+        gen = g;
         let sample = {
             let vc = c.session();
             vc.get_position().and_then(|p| Ok((p, vc.get_cycle()?)))
         };
-        if let Ok((p, cycle)) = sample {
-            let t = next.duration_since(t0).as_secs_f64();
-            if writeln!(
-                out,
-                "{t:.6} {} {} {} {} {} {} {} {cycle}",
-                p[0], p[1], p[2], p[3], p[4], p[5], p[6]
-            )
-            .is_err()
-            {
-                break;
-            }
-            n += 1;
+        let Ok((p, cycle)) = sample else { continue };
+        let c0 = *first.get_or_insert(cycle);
+        if n > 0 && !cycle_reached(cycle, due) {
+            continue;
         }
-        // Next point of the sampling grid (late samples skip grid points).
-        next += period;
-        let now = Instant::now();
-        while next < now {
-            next += period;
+        let t = f64::from(cycle.wrapping_sub(c0)) * f64::from(servo_us) * 1e-6;
+        if writeln!(
+            out,
+            "{t:.6} {} {} {} {} {} {} {} {cycle}",
+            p[0], p[1], p[2], p[3], p[4], p[5], p[6]
+        )
+        .is_err()
+        {
+            break;
         }
-        std::thread::sleep(next - now);
+        n += 1;
+        // Next point of the grid (a late sample skips grid points).
+        if n == 1 {
+            due = c0;
+        }
+        while cycle_reached(cycle, due) {
+            due = due.wrapping_add(step);
+        }
     }
     let _ = out.flush();
 }

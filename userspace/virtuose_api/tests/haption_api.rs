@@ -621,15 +621,18 @@ fn trajectory_recording_writes_the_handle_poses() {
     for (i, r) in rows.iter().enumerate() {
         assert_eq!(r.len(), 9, "{r:?}");
         assert!((r[1] - 0.45).abs() <= 0.05 + 1e-6 && (r[2] - 0.05).abs() < 1e-6);
+        // Controller time: the cycles since the first sample × 1 ms.
+        assert!(
+            (r[0] - (r[8] - rows[0][8]) * 0.001).abs() < 1e-6,
+            "{:?} {r:?}",
+            rows[0]
+        );
         if i > 0 {
-            // Times on the sampling grid, increasing; controller cycles too.
+            // One sample per grid point of 5 cycles reached, the grid
+            // starting at the first sample: never two in one interval.
             let prev = &rows[i - 1];
-            let steps = (r[0] - prev[0]) / 0.005;
-            assert!(
-                steps >= 0.999 && (steps - steps.round()).abs() < 1e-3,
-                "{prev:?} {r:?}"
-            );
-            assert!(r[8] >= prev[8], "{prev:?} {r:?}");
+            let (k_prev, k) = ((prev[8] - rows[0][8]) / 5.0, (r[8] - rows[0][8]) / 5.0);
+            assert!(k.floor() > k_prev.floor(), "{prev:?} {r:?}");
         }
     }
     // The handle moves: the samples differ.
