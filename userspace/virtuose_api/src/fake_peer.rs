@@ -5,7 +5,8 @@
 //! bridge does), acknowledges configuration requests, and answers every
 //! VprStream with an Answer (or, with `answer_every_period`, answers every
 //! period while the session is open, like the controller): the handle
-//! follows a scripted sinusoid, and the coupling wrench is a spring-damper
+//! follows a scripted sinusoid of the fake's own time (one period per
+//! answer, whatever the host's clock), and the coupling wrench is a spring-damper
 //! between the handle and the streamed virtual object (only while a virtual
 //! object is attached and power is on).
 
@@ -199,7 +200,10 @@ fn run(
                       vpr: &Option<(Pose, Twist, u32)>,
                       powered: bool,
                       attached: bool| {
-        let t = t0.elapsed().as_secs_f64();
+        // The handle moves on the controller's clock: one period per
+        // answer (a client that is late sees the handle where the
+        // controller's time puts it, not where the host's clock would).
+        let t = f64::from(cycle) * f64::from(cfg.period_us) * 1e-6;
         let mut hp = [0.0; 3];
         let mut hv = [0.0; 3];
         for i in 0..3 {

@@ -523,12 +523,15 @@ fn simulation_stiffness_and_damping_are_the_controllers_coupling() {
 fn a_callback_that_overruns_raises_the_alarm() {
     let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
     let vc = open(&p);
-    // A callback that takes 5 periods, stopping itself after 10 calls.
+    // A callback that takes 20 periods, stopping itself after 10 calls (an
+    // overrun is measured on the controller's clock: the fake must have
+    // answered past the next call's cycle meanwhile, which a loaded host
+    // could delay for a few ms, not for 20).
     let counter = Counter {
         vc,
         calls: AtomicU32::new(0),
         errors: AtomicU32::new(0),
-        sleep_us: 5000,
+        sleep_us: 20_000,
         stop_after: 10,
     };
     let period = 0.001f32;
