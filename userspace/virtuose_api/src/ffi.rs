@@ -1566,9 +1566,13 @@ struct LoopArgs {
 }
 
 /// Cycles of the controller's servo between two calls of a periodic
-/// function of `period` (at least 1).
+/// function of `period` (at least 1; 1 when the controller announced no
+/// period).
 fn cycles_per_call(period: Duration, servo_period_us: u32) -> u32 {
-    let servo = u128::from(servo_period_us.max(1));
+    if servo_period_us == 0 {
+        return 1;
+    }
+    let servo = u128::from(servo_period_us);
     let n = (period.as_micros() + servo / 2) / servo;
     u32::try_from(n).unwrap_or(u32::MAX).max(1)
 }
@@ -2071,6 +2075,20 @@ mod tests {
             assert_eq!(virtGetError(std::ptr::null_mut(), &mut e), 0);
             assert_eq!(e, VIRT_E_SYNTAX_ERROR);
         }
+    }
+
+    #[test]
+    fn calls_follow_the_servo_period() {
+        let ms = Duration::from_millis;
+        assert_eq!(cycles_per_call(ms(1), 1000), 1);
+        assert_eq!(cycles_per_call(ms(1), 4000), 1);
+        assert_eq!(cycles_per_call(ms(8), 4000), 2);
+        assert_eq!(cycles_per_call(ms(10), 1000), 10);
+        assert_eq!(cycles_per_call(Duration::from_micros(1500), 1000), 2);
+        assert_eq!(cycles_per_call(ms(5), 0), 1);
+        assert!(cycle_reached(5, 5) && cycle_reached(6, 5) && !cycle_reached(4, 5));
+        // Across the 32-bit wrap of the controller's counter.
+        assert!(cycle_reached(2, u32::MAX - 1) && !cycle_reached(u32::MAX - 1, 2));
     }
 
     #[test]
