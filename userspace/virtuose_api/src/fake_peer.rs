@@ -52,6 +52,9 @@ pub struct FakePeerConfig {
     pub extra_status: u32,
     /// `hap_core::vp::alarm` bits reported in every answer.
     pub alarms: u32,
+    /// Neither apply nor acknowledge power requests (a controller that
+    /// does not answer a request: the client's retries time out).
+    pub ignore_power_requests: bool,
 }
 
 impl Default for FakePeerConfig {
@@ -71,6 +74,7 @@ impl Default for FakePeerConfig {
             answer_every_period: false,
             extra_status: 0,
             alarms: 0,
+            ignore_power_requests: false,
         }
     }
 }
@@ -370,6 +374,7 @@ fn run(
                 attached = false;
                 last_vpr = None;
             }
+            Frame::PowerRequest(_) if cfg.ignore_power_requests => {}
             Frame::PowerRequest(on) => {
                 powered = on;
                 ack(&mut seq, session, &mut out);

@@ -520,6 +520,60 @@ fn simulation_stiffness_and_damping_are_the_controllers_coupling() {
 }
 
 #[test]
+fn a_request_round_trip_does_not_stall_the_loop() {
+    // A controller that never acknowledges a power request: the request
+    // waits for its retries while the loop runs on.
+    let p = FakePeer::start(FakePeerConfig {
+        center: [0.45, 0.05, 0.25],
+        amplitude: [0.0; 3],
+        answer_every_period: true,
+        twist_every: 4,
+        ignore_power_requests: true,
+        ..Default::default()
+    })
+    .unwrap();
+    let vc = open(&p);
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 0,
+        stop_after: 0,
+    };
+    let period = 0.001f32;
+    let addr = vc as usize;
+    // SAFETY: vc is live until virtClose below, after the requesting thread
+    // and the loop have ended; counter outlives the loop.
+    unsafe {
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        // 4 attempts of 0.15 s.
+        assert_eq!(virtSetTimeoutValue(vc, 0.6), 0);
+        let arg = &counter as *const Counter as *mut c_void;
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        assert_eq!(virtStartLoop(vc), 0);
+        std::thread::sleep(Duration::from_millis(50));
+        // (The context outlives this thread: joined below.)
+        let requester = std::thread::spawn(move || {
+            let r = virtSetPowerOn(addr as *mut c_void, 1);
+            (r, virtGetErrorCode(addr as *mut c_void))
+        });
+        std::thread::sleep(Duration::from_millis(100));
+        let (c0, a0) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
+        std::thread::sleep(Duration::from_millis(300));
+        let (c1, a1) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
+        assert!(!requester.is_finished(), "the request ended early");
+        let (calls, answers) = (u64::from(c1 - c0), a1 - a0);
+        assert!(answers >= 50, "{answers} answers");
+        assert!(2 * calls >= answers, "{calls} calls for {answers} answers");
+        let (r, code) = requester.join().unwrap();
+        assert_eq!((r, code), (-1, VIRT_E_TIME_OUT));
+        assert_eq!(virtStopLoop(vc), 0);
+        assert_eq!(counter.errors.load(Ordering::SeqCst), 0);
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
 fn a_callback_that_overruns_raises_the_alarm() {
     let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
     let vc = open(&p);
