@@ -7,9 +7,11 @@
 //! thread. Float arrays: position `float[7]` (x, y, z, qx, qy, qz, qw),
 //! speed and force `float[6]`.
 //!
-//! A context may be used from two threads at once (the application and the
-//! periodic callback loop): its session, its VirtuoseAPI state and its loop
-//! are behind separate mutexes, never held together.
+//! A context may be used from several threads at once (the application,
+//! the periodic callback loop, the trajectory recorder): its session (a
+//! read-write lock: requests, readings and set-points share it), its
+//! VirtuoseAPI state and its loop are behind separate locks, never held
+//! together.
 
 use std::cell::RefCell;
 use std::ffi::{c_char, c_float, c_int, c_uint, c_ushort, c_void, CStr, CString};
