@@ -229,7 +229,8 @@ impl Worker {
 pub struct VirtContextS {
     /// Requests (an acknowledged round trip) and readings take it shared,
     /// so one thread's request does not stall another's readings and
-    /// set-points; only closing and the factors take it exclusive.
+    /// set-points; only closing, the factors and the time-out value take
+    /// it exclusive.
     vc: RwLock<VirtContext>,
     st: Mutex<ApiState>,
     periodic_loop: Mutex<Option<Worker>>,
