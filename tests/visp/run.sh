@@ -272,7 +272,7 @@ import struct, sys
 d = open(sys.argv[1], "rb").read()
 S = 560
 fx = lambda b, o: struct.unpack_from("<q", b, o)[0] / 2.0**32
-n = pushed = 0; lo = [1e9] * 3; hi = [-1e9] * 3; tau = 0.0; powered = 0
+n = pushed = last_powered = 0; lo = [1e9] * 3; hi = [-1e9] * 3; tau = 0.0; powered = 0
 for i in range(0, len(d) - S + 1, S):
     r = d[i:i + S]
     if r[:4] != b"HAPL" or struct.unpack_from("<H", r, 552)[0] == 0:
@@ -280,6 +280,7 @@ for i in range(0, len(d) - S + 1, S):
     n += 1
     flags = struct.unpack_from("<H", r, 6)[0]
     powered += flags & 1
+    last_powered = flags & 1
     f = [fx(r, 328 + 8 * k) for k in range(3)]
     if (f[0] ** 2 + f[1] ** 2 + f[2] ** 2) ** 0.5 >= 0.5:
         pushed += 1
@@ -288,6 +289,7 @@ for i in range(0, len(d) - S + 1, S):
         tau = max(tau, max(abs(fx(r, 280 + 8 * k)) for k in range(6)))
 print("session_records:", n)
 print("powered_records:", powered)
+print("powered_at_session_end:", last_powered)
 print("pushed_records:", pushed)
 print("handle_travel_while_pushed_m: %.4f" % (max(h - l for h, l in zip(hi, lo)) if pushed else 0))
 print("max_motor_torque_while_pushed_nm: %.3f" % tau)
@@ -296,6 +298,7 @@ sed 's/^/# simlog: /' "$results/simlog_session.txt"
 sv() { sed -n "s/^$1: //p" "$results/simlog_session.txt" | head -1; }
 check_num "position log: records during the session" "$(sv session_records)" '>=' 200
 check_num "position log: powered during the session" "$(sv powered_records)" '>=' 200
+check_num "position log: powered off before the session closed (virtSetPowerOn(0))" "$(sv powered_at_session_end)" '==' 0
 check_num "position log: cycles where the coupling pushed (>= 0.5 N)" "$(sv pushed_records)" '>=' 20
 check_num "position log: the handle moved while it pushed (m)" "$(sv handle_travel_while_pushed_m)" '>=' 0.005
 check_num "position log: the motors produced torque while it pushed (N m)" "$(sv max_motor_torque_while_pushed_nm)" '>' 0.01
