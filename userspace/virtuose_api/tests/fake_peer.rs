@@ -5,10 +5,12 @@ use std::time::Duration;
 use virtuose_api::fake_peer::{FakePeer, FakePeerConfig};
 use virtuose_api::{CommandType, IndexingMode, Options, VirtContext, VirtError};
 
+/// Short time-outs, with room for a loaded host: an OpenSession waits
+/// 100, 200, then 400 ms.
 fn quick() -> Options {
     Options {
         reply_timeout: Duration::from_millis(100),
-        attempts: 2,
+        attempts: 3,
         ..Options::default()
     }
 }
