@@ -64,6 +64,7 @@ mod servo;
 mod shared;
 mod simulator;
 mod stats;
+mod time;
 mod uaccess;
 
 use clock::{Stop, Timers};

@@ -20,10 +20,11 @@ use crate::{
         simulator::LogRecord,
         stats::{HapStats, STATS_WORDS},
     },
-    ring::{AtomicU64, Fifo},
+    ring::{storage, AtomicU64, Fifo},
     rtf::{RtfInCounters, RTF_FRAMES},
     rwsem::RwSem,
     simulator::{EffortScratch, EFFORT_RECORD_BYTES},
+    time::Ktime,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 use kernel::{
@@ -34,7 +35,6 @@ use kernel::{
         atomic::{Atomic, Relaxed},
         Arc, Mutex,
     },
-    time::{Instant, Monotonic},
 };
 use pin_init::init_zeroed;
 
@@ -166,19 +166,11 @@ impl<const N: usize> core::ops::Deref for Words<N> {
     }
 }
 
-fn atomic_words(n: usize) -> Result<KVVec<AtomicU64>> {
-    let mut v = KVVec::with_capacity(n, GFP_KERNEL)?;
-    for _ in 0..n {
-        v.push(AtomicU64::new(0), GFP_KERNEL)?;
-    }
-    Ok(v)
-}
-
 #[pin_data]
 pub(crate) struct Shared {
     pub(crate) period_us: u32,
     /// Time origin for every nanosecond stamp.
-    epoch: Instant<Monotonic>,
+    epoch: Ktime,
 
     /// Cycle start (the spec's `bar_clock`): CLOCK's timer → SERVO.
     #[pin]
@@ -283,7 +275,7 @@ impl Shared {
         let proto = KBox::new(ProtoIn::new(), GFP_KERNEL)?;
         let data = ServoData::new_boxed(period_us)?;
         let mut own_stats = new_stats(period_us)?;
-        let stats = SeqWords::new(atomic_words(STATS_WORDS)?);
+        let stats = SeqWords::new(storage(STATS_WORDS)?);
         {
             let w = stats.write();
             own_stats.visit_words(crate::hap_core::stats::WordSet::All, |i, v| w.set(i, *v));
@@ -296,7 +288,7 @@ impl Shared {
         let effort_scratch = EffortScratch::new_boxed()?;
         Ok(try_pin_init!(Self {
             period_us,
-            epoch: Instant::now(),
+            epoch: Ktime::now(),
             cycle_start <- Completion::new(),
             check_due <- Completion::new(),
             rtf_in_ready <- Completion::new(),
@@ -341,14 +333,14 @@ impl Shared {
         }? Error))
     }
 
-    /// Nanoseconds since `epoch` of an instant.
-    pub(crate) fn ns_of(&self, t: Instant<Monotonic>) -> i64 {
-        (t - self.epoch).as_nanos()
+    /// Nanoseconds since `epoch` of a clock reading.
+    pub(crate) fn ns_of(&self, t: Ktime) -> i64 {
+        t.ns_since(self.epoch)
     }
 
     /// Nanoseconds since `epoch`, now.
     pub(crate) fn now_ns(&self) -> i64 {
-        self.ns_of(Instant::now())
+        self.ns_of(Ktime::now())
     }
 
     pub(crate) fn period_ns(&self) -> i64 {

@@ -691,12 +691,13 @@ pub fn cartesian_control(
         }
     }
     let mut over = [false; 6];
-    for (i, ((t, qd), (start, b))) in fixed
-        .iter_mut()
-        .zip(ps.qd.iter())
-        .zip(BRAKE_START.iter().zip(ctrl.brake.iter()))
-        .enumerate()
-    {
+    // A bounded index range, not `enumerate()` (an overflow-checked counter).
+    for (i, ((t, qd), (start, b))) in (0..over.len()).zip(
+        fixed
+            .iter_mut()
+            .zip(ps.qd.iter())
+            .zip(BRAKE_START.iter().zip(ctrl.brake.iter())),
+    ) {
         let speed = qd.abs();
         if speed > *start {
             alarms |= alarm::VELOCITY_LIMIT;
