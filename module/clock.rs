@@ -212,7 +212,7 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
             FailSafeAction::InhibitMotorCommands => sh.motor_line.fail_safe_inhibit(),
             FailSafeAction::PowerOffArm => sh.motor_line.power_off(),
             FailSafeAction::CloseProtocol => {
-                sh.proto.lock().close();
+                sh.close_protocol();
                 sh.rtf_out.close(true);
                 sh.rtf_replies.close(true);
                 sh.rtf_in.close(true);

@@ -11,6 +11,7 @@ use crate::{
         config::ServoConfig,
         cycle::ServoCycle,
         effort::{EffortKeyframe, EFFORT_CAPACITY},
+        fixed::Fx,
         handshake::CycleHandshake,
         io::MotorLine,
         proto_in::{ProtoCounters, ProtoIn, Reject},
@@ -19,6 +20,7 @@ use crate::{
         servo::PowerRequest,
         simulator::LogRecord,
         stats::{HapStats, STATS_WORDS},
+        vp::VpReceived,
     },
     ring::{storage, AtomicU64, Fifo},
     rtf::{RtfInCounters, RTF_FRAMES},
@@ -33,14 +35,15 @@ use kernel::{
     static_lock_class,
     sync::{
         atomic::{Atomic, Relaxed},
-        Arc, Mutex,
+        Arc, Mutex, MutexGuard,
     },
 };
 use pin_init::init_zeroed;
 
 /// SERVO's data (the spec's `data` structure, under `mtx_data`). Only SERVO
-/// takes `mtx_data` (and module init, for the calibration, before the tasks
-/// start); device writes reach SERVO through lock-free handoffs.
+/// locks `mtx_data` (and module init, for the calibration, before the tasks
+/// start); the fail-safe only try-locks it, to log SERVO's last record;
+/// device writes reach SERVO through lock-free handoffs.
 #[pin_data]
 pub(crate) struct ServoData {
     pub(crate) cycle: ServoCycle,
@@ -150,6 +153,55 @@ pub(crate) fn proto_words(
     w(session);
 }
 
+/// Words of the VPr latch: the session, then the `VpReceived`.
+pub(crate) const VPR_WORDS: usize = 18;
+
+/// The session and a `VpReceived` as latch words (and back): one walk for
+/// both directions, so that encoding and decoding cannot disagree. `Fx`
+/// values cross as their bits.
+fn vpr_words(session: &mut u64, v: &mut VpReceived, f: impl FnMut(usize, &mut u64)) {
+    struct Walk<F> {
+        i: usize,
+        f: F,
+    }
+    impl<F: FnMut(usize, &mut u64)> Walk<F> {
+        fn word(&mut self, w: &mut u64) {
+            (self.f)(self.i, w);
+            self.i = self.i.saturating_add(1);
+        }
+        fn fx(&mut self, x: &mut Fx) {
+            let mut w = x.0 as u64;
+            self.word(&mut w);
+            x.0 = w as i64;
+        }
+        fn u32(&mut self, x: &mut u32) {
+            let mut w = u64::from(*x);
+            self.word(&mut w);
+            *x = u32::try_from(w).unwrap_or(0);
+        }
+    }
+    let mut k = Walk { i: 0, f };
+    k.word(session);
+    let p = &mut v.pose;
+    for x in [&mut p.position.x, &mut p.position.y, &mut p.position.z] {
+        k.fx(x);
+    }
+    let o = &mut p.orientation;
+    for x in [&mut o.x, &mut o.y, &mut o.z, &mut o.w] {
+        k.fx(x);
+    }
+    let (l, a) = (&mut v.twist.linear, &mut v.twist.angular);
+    for x in [&mut l.x, &mut l.y, &mut l.z, &mut a.x, &mut a.y, &mut a.z] {
+        k.fx(x);
+    }
+    k.u32(&mut v.seq);
+    k.u32(&mut v.client_time_us);
+    k.word(&mut v.received_cycle);
+    let mut valid = u64::from(v.valid);
+    k.word(&mut valid);
+    v.valid = valid != 0;
+}
+
 /// A fixed array of atomic words (small publications, built inline).
 pub(crate) struct Words<const N: usize>([AtomicU64; N]);
 
@@ -194,11 +246,16 @@ pub(crate) struct Shared {
     pub(crate) rtf_in_counters: RtfInCounters,
 
     /// `mtx_proto`: the protocol state and the VPr shared memory. PROTO_IN
-    /// locks it; SERVO only try-locks it; no device takes it.
+    /// locks it for each frame, the fail-safe and rmmod to close; SERVO
+    /// never takes it (it reads the VPr latch) and no device takes it.
     #[pin]
     pub(crate) proto: Mutex<KBox<ProtoIn>>,
     /// PROTO_IN's counters and session, published after each frame.
     pub(crate) proto_pub: SeqWords<Words<PROTO_WORDS>>,
+    /// The VPr latch: the session and the latest VPr, published under
+    /// `mtx_proto` whenever they change (`Shared::publish_vpr`); SERVO reads
+    /// it without any lock (`Shared::latest_vpr`).
+    vpr_latch: SeqWords<Words<VPR_WORDS>>,
     /// `mtx_data`: SERVO's data.
     #[pin]
     pub(crate) data: Mutex<KBox<ServoData>>,
@@ -259,7 +316,9 @@ pub(crate) struct Shared {
     /// Servo cycle at which the effort sequence was (re)loaded / power requested.
     pub(crate) effort_loaded_cycle: Atomic<u64>,
     pub(crate) power_on_cycle: Atomic<u64>,
-    /// Answer frames: sequence counter, frames queued, cycles skipped (lock busy).
+    /// Answer frames: sequence counter, frames queued, cycles whose answers
+    /// were skipped (the VPr latch was being written: `answers_skipped_lock_busy`
+    /// in /dev/hap_stats), frames a full rtf_out refused.
     pub(crate) answer_seq: Atomic<u32>,
     pub(crate) answers_sent: Atomic<u64>,
     pub(crate) answers_skipped: Atomic<u64>,
@@ -273,6 +332,14 @@ pub(crate) struct Shared {
 impl Shared {
     pub(crate) fn new(period_us: u32) -> Result<impl PinInit<Self, Error>> {
         let proto = KBox::new(ProtoIn::new(), GFP_KERNEL)?;
+        // The latch starts as the protocol does (no session, its initial VPr).
+        let vpr_latch = SeqWords::new(Words::new());
+        {
+            let mut session = u64::from(proto.session());
+            let mut vpr = *proto.vpr();
+            let w = vpr_latch.write();
+            vpr_words(&mut session, &mut vpr, |i, v| w.set(i, *v));
+        }
         let data = ServoData::new_boxed(period_us)?;
         let mut own_stats = new_stats(period_us)?;
         let stats = SeqWords::new(storage(STATS_WORDS)?);
@@ -298,6 +365,7 @@ impl Shared {
             rtf_in_counters: RtfInCounters::new(),
             proto <- new_mutex!(proto),
             proto_pub: SeqWords::new(Words::new()),
+            vpr_latch,
             data <- new_mutex!(data),
             config <- RwSem::new(ServoConfig::default(), c_str!("hap_config"), static_lock_class!()),
             clock_stats <- new_mutex!(Some(own_stats)),
@@ -384,6 +452,40 @@ impl Shared {
         Ok(())
     }
 
+    /// Publish the protocol's session and VPr into the VPr latch. Taking
+    /// the `mtx_proto` guard serialises the latch's writers (PROTO_IN after
+    /// each frame, the fail-safe and rmmod after closing the protocol).
+    pub(crate) fn publish_vpr(&self, proto: &MutexGuard<'_, KBox<ProtoIn>>) {
+        let mut session = u64::from(proto.session());
+        let mut vpr = *proto.vpr();
+        let w = self.vpr_latch.write();
+        vpr_words(&mut session, &mut vpr, |i, v| w.set(i, *v));
+    }
+
+    /// Close the protocol (the fail-safe, rmmod) and publish the closed
+    /// session and VPr.
+    pub(crate) fn close_protocol(&self) {
+        let mut proto = self.proto.lock();
+        proto.close();
+        self.publish_vpr(&proto);
+    }
+
+    /// SERVO: the session and the VPr last published, without any lock;
+    /// `None` if every attempt overlapped a publication (a PROTO_IN
+    /// preempted inside its few stores: SERVO extrapolates).
+    pub(crate) fn latest_vpr(&self) -> Option<(u16, VpReceived)> {
+        let mut words = [0u64; VPR_WORDS];
+        self.vpr_latch.read(&mut words, VPR_READ_ATTEMPTS)?;
+        let mut session = 0u64;
+        let mut vpr = VpReceived::default();
+        vpr_words(&mut session, &mut vpr, |i, v| {
+            if let Some(w) = words.get(i) {
+                *v = *w;
+            }
+        });
+        Some((u16::try_from(session).unwrap_or(0), vpr))
+    }
+
     /// PROTO_IN's published counters and session.
     pub(crate) fn proto_counters(&self) -> (ProtoCounters, u16) {
         let mut words = [0u64; PROTO_WORDS];
@@ -398,6 +500,10 @@ impl Shared {
         (c, u16::try_from(session).unwrap_or(0))
     }
 }
+
+/// SERVO's read attempts of the VPr latch (a publication is 18 stores;
+/// on one CPU a PROTO_IN preempted inside one does not finish meanwhile).
+const VPR_READ_ATTEMPTS: usize = 4;
 
 /// Read attempts before a statistics read gives up (each copies ~3 000
 /// words; CLOCK writes a few dozen once per period).
