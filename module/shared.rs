@@ -11,7 +11,6 @@ use crate::{
         config::ServoConfig,
         cycle::ServoCycle,
         effort::{EffortKeyframe, EFFORT_CAPACITY},
-        fixed::Fx,
         handshake::CycleHandshake,
         io::MotorLine,
         proto_in::{ProtoCounters, ProtoIn, Reject},
@@ -20,7 +19,7 @@ use crate::{
         servo::PowerRequest,
         simulator::LogRecord,
         stats::{HapStats, STATS_WORDS},
-        vp::VpReceived,
+        vp::{VpReceived, VPR_WORDS},
     },
     ring::{storage, AtomicU64, Fifo},
     rtf::{RtfInCounters, RTF_FRAMES},
@@ -153,53 +152,14 @@ pub(crate) fn proto_words(
     w(session);
 }
 
-/// Words of the VPr latch: the session, then the `VpReceived`.
-pub(crate) const VPR_WORDS: usize = 18;
+/// Words of the VPr latch: the session, then the `VpReceived`'s.
+pub(crate) const VPR_LATCH_WORDS: usize = 1 + VPR_WORDS;
 
-/// The session and a `VpReceived` as latch words (and back): one walk for
-/// both directions, so that encoding and decoding cannot disagree. `Fx`
-/// values cross as their bits.
-fn vpr_words(session: &mut u64, v: &mut VpReceived, f: impl FnMut(usize, &mut u64)) {
-    struct Walk<F> {
-        i: usize,
-        f: F,
-    }
-    impl<F: FnMut(usize, &mut u64)> Walk<F> {
-        fn word(&mut self, w: &mut u64) {
-            (self.f)(self.i, w);
-            self.i = self.i.saturating_add(1);
-        }
-        fn fx(&mut self, x: &mut Fx) {
-            let mut w = x.0 as u64;
-            self.word(&mut w);
-            x.0 = w as i64;
-        }
-        fn u32(&mut self, x: &mut u32) {
-            let mut w = u64::from(*x);
-            self.word(&mut w);
-            *x = u32::try_from(w).unwrap_or(0);
-        }
-    }
-    let mut k = Walk { i: 0, f };
-    k.word(session);
-    let p = &mut v.pose;
-    for x in [&mut p.position.x, &mut p.position.y, &mut p.position.z] {
-        k.fx(x);
-    }
-    let o = &mut p.orientation;
-    for x in [&mut o.x, &mut o.y, &mut o.z, &mut o.w] {
-        k.fx(x);
-    }
-    let (l, a) = (&mut v.twist.linear, &mut v.twist.angular);
-    for x in [&mut l.x, &mut l.y, &mut l.z, &mut a.x, &mut a.y, &mut a.z] {
-        k.fx(x);
-    }
-    k.u32(&mut v.seq);
-    k.u32(&mut v.client_time_us);
-    k.word(&mut v.received_cycle);
-    let mut valid = u64::from(v.valid);
-    k.word(&mut valid);
-    v.valid = valid != 0;
+/// The session and a `VpReceived` as latch words (and back): word 0 is the
+/// session, then hap-core's walk of the VPr (host-tested round trip).
+fn vpr_words(session: &mut u64, v: &mut VpReceived, mut f: impl FnMut(usize, &mut u64)) {
+    f(0, session);
+    v.visit_words(|i, w| f(i.saturating_add(1), w));
 }
 
 /// A fixed array of atomic words (small publications, built inline).
@@ -255,7 +215,7 @@ pub(crate) struct Shared {
     /// The VPr latch: the session and the latest VPr, published under
     /// `mtx_proto` whenever they change (`Shared::publish_vpr`); SERVO reads
     /// it without any lock (`Shared::latest_vpr`).
-    vpr_latch: SeqWords<Words<VPR_WORDS>>,
+    vpr_latch: SeqWords<Words<VPR_LATCH_WORDS>>,
     /// `mtx_data`: SERVO's data.
     #[pin]
     pub(crate) data: Mutex<KBox<ServoData>>,
@@ -474,7 +434,7 @@ impl Shared {
     /// `None` if every attempt overlapped a publication (a PROTO_IN
     /// preempted inside its few stores: SERVO extrapolates).
     pub(crate) fn latest_vpr(&self) -> Option<(u16, VpReceived)> {
-        let mut words = [0u64; VPR_WORDS];
+        let mut words = [0u64; VPR_LATCH_WORDS];
         self.vpr_latch.read(&mut words, VPR_READ_ATTEMPTS)?;
         let mut session = 0u64;
         let mut vpr = VpReceived::default();
