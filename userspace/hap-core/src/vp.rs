@@ -134,7 +134,8 @@ pub struct VpSent {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fixed::{Quat, Vec3};
+
+    use super::super::fixed::{Quat, Vec3};
 
     fn words_of(v: &VpReceived) -> [u64; VPR_WORDS] {
         let mut out = [0u64; VPR_WORDS];
