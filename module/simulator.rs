@@ -322,12 +322,17 @@ impl HapDevice for SimLog {
 }
 
 /// Log fail-safe step `step` (1-based, `FAIL_SAFE_SEQUENCE` order) as it
-/// starts: the servo's last record (or an empty one if SERVO holds
-/// `mtx_data`) with mode `FailSafe`, the arm status now, and the tick.
+/// starts: the servo's last record with mode `FailSafe`, the arm status
+/// now, and the tick. If SERVO holds `mtx_data` (a hung or overrunning
+/// cycle), its state is unknown: an empty record flagged `POSE_UNKNOWN`,
+/// which the analysis does not read as a pose.
 pub(crate) fn log_fail_safe_step(sh: &Shared, step: u8) {
     let mut rec = match sh.data.try_lock() {
         Some(d) => *d.cycle.servo.log_record(),
-        None => LogRecord::ZERO,
+        None => LogRecord {
+            flags: crate::hap_core::servo::log_flags::POSE_UNKNOWN,
+            ..LogRecord::ZERO
+        },
     };
     rec.mode = LogMode::FailSafe;
     rec.fail_safe_step = step;

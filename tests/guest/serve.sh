@@ -24,6 +24,8 @@ t=0
 while [ $t -lt $((max_s * 10)) ]; do
   opened=$(stat_value sessions_opened); cur=$(stat_value session)
   [ "${opened:-0}" -ge 1 ] && [ "$cur" = 0 ] && break
+  # A controller in fail-safe serves no session any more.
+  [ "$(stat_value state)" = fail_safe ] && break
   usleep 100000
   t=$((t + 1))
 done

@@ -92,6 +92,11 @@ pub mod log_flags {
     pub const COUPLED: u16 = 1 << 6;
     /// The fail-safe had cut the motor line during this period.
     pub const LINE_CUT: u16 = 1 << 7;
+    /// A fail-safe step record whose servo fields are unknown: SERVO held
+    /// its data when the step ran, so only the mode, the step, the status,
+    /// the alarms, the applied torques (read from the motor line) and the
+    /// tick are valid; the pose, speeds, forces, cycle and time are 0.
+    pub const POSE_UNKNOWN: u16 = 1 << 8;
 }
 
 /// Everything the servo loop owns.

@@ -249,7 +249,7 @@ impl LogMode {
 /// |---|---|---|
 /// | 0 | 4 | magic `b"HAPL"` |
 /// | 4 | 2 | version (2) |
-/// | 6 | 2 | flags: bit0 power, bit1 motors enabled, bit2 dead-man, bit3 button1, bit4 button2, bit5 degraded, bit6 coupled, bit7 motor line cut by the fail-safe during the period |
+/// | 6 | 2 | flags: bit0 power, bit1 motors enabled, bit2 dead-man, bit3 button1, bit4 button2, bit5 degraded, bit6 coupled, bit7 motor line cut by the fail-safe during the period, bit8 (fail-safe step records only) servo fields unknown: only mode, step, status, alarms, applied torques and tick are valid |
 /// | 8 | 8 | cycle (u64), consecutive from 0 at insmod |
 /// | 16 | 8 | servo time at the cycle start, µs (cycle × period) |
 /// | 24 | 1 | mode: 0 main, 1 degraded, 2 fail-safe step |

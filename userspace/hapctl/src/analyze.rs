@@ -32,7 +32,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use hap_core::arm::TAU_MAX;
-use hap_core::control::BRAKE_START;
+use hap_core::control::{BRAKE_START, MAX_FORCE};
 use hap_core::simulator::{LogMode, LogRecord};
 use hap_core::stats::{histogram_entries, key_values, parse_summary, StatsSummary, HIST_SERIES};
 use hap_core::vp::status;
@@ -138,6 +138,13 @@ pub fn run(log: &Path, out: &Path, inputs: &Inputs<'_>) -> Result<(), String> {
         .unwrap_or_else(|| period_from_log(&recs));
     let run = Run::new(&recs, period_us, bad);
     let mut figs = run.figures();
+    if let (Some((st, _)), Some(f)) = (&stats, figs.iter_mut().find(|f| f.name == "timing")) {
+        f.title = format!(
+            "Cycle timing: {} deadline misses located in the log (red markers); the module counted {}",
+            run.misses(),
+            st.counters.misses
+        );
+    }
     if let Some(h) = &hist {
         figs.push(latency_histogram(h));
     }
@@ -278,6 +285,11 @@ pub struct Run<'a> {
     /// Time of each servo record, s.
     t: Vec<f64>,
     pub events: Vec<Event>,
+    /// Fail-safe step records with the time they ran at, s. Only their
+    /// applied torques (read from the motor line) are drawn: their other
+    /// servo fields are SERVO's last cycle's, or unknown
+    /// ([`crate::simlog::pose_unknown`]).
+    fail_safe: Vec<(f64, &'a LogRecord)>,
     pub continuity: Continuity,
     undecodable: usize,
     /// Cycles with kernel timing (tick ≠ 0): the log came from the module.
@@ -373,6 +385,7 @@ impl<'a> Run<'a> {
         // Fail-safe steps: at the tick they ran at, mapped onto cycles by
         // the last servo record before them.
         let mut last: Option<&LogRecord> = None;
+        let mut fail_safe = Vec::new();
         for r in all {
             if r.mode != LogMode::FailSafe {
                 last = Some(r);
@@ -383,8 +396,12 @@ impl<'a> Run<'a> {
                     l.cycle.saturating_add(r.timing.tick - l.timing.tick)
                 }
                 Some(l) => l.cycle,
+                // No servo record before it: its own cycle if it has one,
+                // else the tick (cycle n starts at tick n + 1).
+                None if crate::simlog::pose_unknown(r) => r.timing.tick.saturating_sub(1),
                 None => r.cycle,
             };
+            fail_safe.push((t_of(cycle), r));
             events.push(Event {
                 cycle,
                 t: t_of(cycle),
@@ -403,6 +420,7 @@ impl<'a> Run<'a> {
             period_us,
             t,
             events,
+            fail_safe,
             continuity,
             undecodable,
             timed,
@@ -418,7 +436,8 @@ impl<'a> Run<'a> {
             .sum()
     }
 
-    fn x_range(&self) -> (f64, f64) {
+    /// The run's time span, s: first record to last event.
+    fn span(&self) -> (f64, f64) {
         let lo = self.t.first().copied().unwrap_or(0.0);
         let hi = self
             .events
@@ -427,6 +446,14 @@ impl<'a> Run<'a> {
             .chain(self.t.last().copied())
             .fold(lo, f64::max);
         (lo, if hi > lo { hi } else { lo + self.period_s })
+    }
+
+    /// The time axis: the run's span and a margin, so that markers and
+    /// dots at either end stay whole.
+    fn x_range(&self) -> (f64, f64) {
+        let (lo, hi) = self.span();
+        let pad = (hi - lo) * 0.01;
+        (lo - pad, hi + pad)
     }
 
     /// One value per servo record; a gap in the cycle count (dropped
@@ -464,11 +491,18 @@ impl<'a> Run<'a> {
         ];
         let mut out = Vec::new();
 
-        // Trajectories: handle and VPr in the client's frame.
+        // Trajectories: handle and VPr in the client's frame while a VPr
+        // is in use (the frame is the session's: outside it the two are
+        // not comparable), then the handle in the arm's base frame over
+        // the whole run.
         let mut panels = Vec::new();
         for (i, axis) in ["x", "y", "z"].iter().enumerate() {
             let h = self.series(&format!("handle {axis}"), xyz[i], |r| {
-                r.handle_position_client.to_f64()[i]
+                if r.vpr_age_cycles == LogRecord::NO_VPR {
+                    f64::NAN
+                } else {
+                    r.handle_position_client.to_f64()[i]
+                }
             });
             let mut v = self.series(&format!("VPr {axis}"), RGBColor(0, 0, 0), |r| {
                 if r.vpr_age_cycles == LogRecord::NO_VPR {
@@ -479,12 +513,27 @@ impl<'a> Run<'a> {
             });
             v.dashed = true;
             panels.push(Panel::fit(
-                &format!("{axis} (client frame)"),
-                "position (client units)",
+                &format!("{axis} in the client's frame, while a VPr is in use"),
+                "client units",
                 vec![h, v],
                 vec![],
             ));
         }
+        let base: Vec<Line> = (0..3)
+            .map(|i| {
+                self.series(
+                    &format!("handle {}", ["x", "y", "z"][i]),
+                    xyz[i],
+                    move |r| r.handle_position.to_f64()[i],
+                )
+            })
+            .collect();
+        panels.push(Panel::fit(
+            "handle in the arm's base frame, whole run",
+            "m",
+            base,
+            vec![],
+        ));
         out.push(self.figure(
             "trajectory",
             "Handle and VPr (the client's virtual object) trajectories",
@@ -515,10 +564,13 @@ impl<'a> Run<'a> {
             "Forces on the handle (arm base frame)",
             vec![
                 Panel::fit(
-                    "coupling force (controller → handle)",
+                    "coupling force (controller → handle); grey: its saturation ±MAX_FORCE",
                     "N",
                     comp("coupling", |r| r.coupling_force.to_f64()),
-                    vec![],
+                    vec![
+                        (MAX_FORCE.to_f64(), "+MAX_FORCE".into()),
+                        (-MAX_FORCE.to_f64(), "-MAX_FORCE".into()),
+                    ],
                 ),
                 Panel::fit(
                     "user's force",
@@ -539,17 +591,33 @@ impl<'a> Run<'a> {
         let mut panels = Vec::new();
         for (j, lim) in TAU_MAX.iter().enumerate() {
             let lim = lim.to_f64();
-            let mut cmd = self.series("commanded", RGBColor(30, 60, 200), |r| {
+            // Wide and light under the applied torque: where the two
+            // differ (unpowered, cut, clamped) the command shows.
+            let mut cmd = self.series("commanded", RGBColor(120, 160, 255), |r| {
                 r.torque_command[j].to_f64()
             });
-            cmd.width = 1;
+            cmd.width = 4;
             let app = self.series("applied", RGBColor(200, 30, 30), |r| {
                 r.motor_torque[j].to_f64()
             });
+            let mut lines = vec![cmd, app];
+            if !self.fail_safe.is_empty() {
+                // What the motors applied as each fail-safe step ran.
+                let mut fs = Line::new(
+                    "applied at fail-safe steps",
+                    RGBColor(0, 0, 0),
+                    self.fail_safe
+                        .iter()
+                        .map(|(t, r)| (*t, r.motor_torque[j].to_f64()))
+                        .collect(),
+                );
+                fs.points_only = true;
+                lines.push(fs);
+            }
             panels.push(Panel::fit(
                 &format!("joint {} (limit ±{} N·m)", j + 1, short(lim)),
                 "N·m",
-                vec![cmd, app],
+                lines,
                 vec![(lim, "+limit".into()), (-lim, "-limit".into())],
             ));
         }
@@ -567,12 +635,12 @@ impl<'a> Run<'a> {
         hand.y = log_range(&hand);
         hand.y.0 = hand.y.0.max(hand.y.1 * 1e-6);
         let ratio = self.series(
-            "max over joints |q̇ᵢ| / BRAKE_STARTᵢ",
+            "max over joints |dq/dt| / brake threshold",
             RGBColor(200, 30, 30),
             joint_speed_ratio,
         );
         let joints = Panel::fit(
-            "joint speeds against the velocity brake (grey: 1 = brake threshold)",
+            "joint speeds against the velocity brake (grey: 1 = the brake's threshold, control::BRAKE_START)",
             "ratio",
             vec![ratio],
             vec![(1.0, "brake threshold".into())],
@@ -612,8 +680,21 @@ impl<'a> Run<'a> {
             "energy",
             "Energy flow at the coupling port (> 0: the coupling does work on the handle)",
             vec![
-                Panel::fit("power", "W", vec![p_line], vec![]),
-                Panel::fit("energy", "J", vec![e_line, po], vec![]),
+                Panel::fit("power at the handle port", "W", vec![p_line], vec![]),
+                Panel::fit(
+                    "energy delivered at the handle port (running sum)",
+                    "J",
+                    vec![e_line],
+                    vec![],
+                ),
+                // Its own axis: it also counts the work at the VPr's port and
+                // the arm's viscous dissipation, so it is not the sum above.
+                Panel::fit(
+                    "passivity observer: energy into the coupling plus the arm's proven dissipation (≥ 0: passive)",
+                    "J",
+                    vec![po],
+                    vec![(0.0, "0".into())],
+                ),
             ],
         ));
 
@@ -693,7 +774,10 @@ impl<'a> Run<'a> {
             let mut w = w;
             w.points_only = true;
             let mut panel = Panel::fit(
-                "per cycle (log scale)",
+                &format!(
+                    "per cycle (log scale); grey: the deadline check at 3/4 period ({} µs)",
+                    short(deadline)
+                ),
                 "µs",
                 vec![l, w],
                 vec![(deadline, "deadline check (3/4 period)".into())],
@@ -732,7 +816,7 @@ impl<'a> Run<'a> {
             c.first_cycle.unwrap_or(0),
             c.last_cycle.unwrap_or(0)
         );
-        let (t0, t1) = self.x_range();
+        let (t0, t1) = self.span();
         let _ = writeln!(s, "duration_s: {:.3}", t1 - t0);
         let _ = writeln!(s, "period_us: {}", self.period_us);
         let _ = writeln!(s, "dropped_records: {}", c.dropped);
@@ -898,7 +982,8 @@ pub fn fit_range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
     let pad = if span > 0.0 {
         span * 0.05
     } else {
-        (lo.abs() * 0.05).max(1e-6)
+        // A constant: a band readable in any of the units drawn.
+        (lo.abs() * 0.05).max(1e-3)
     };
     (lo - pad, hi + pad)
 }
@@ -1254,6 +1339,15 @@ where
         for seg in segments(&pts) {
             let anno = if l.dashed {
                 ch.draw_series(DashedLineSeries::new(seg, 6, 4, style))?
+            } else if l.width > 1 {
+                // A wide line as separate strokes: a joined wide polyline
+                // gets miter spikes at sharp reversals, far past its data
+                // (and past the panel) in the bitmap backend.
+                ch.draw_series(
+                    seg.windows(2)
+                        .map(|w| PathElement::new(w.to_vec(), style))
+                        .collect::<Vec<_>>(),
+                )?
             } else {
                 ch.draw_series(LineSeries::new(seg, style))?
             };
@@ -1349,7 +1443,7 @@ fn report_html(
         run.recs.len(),
         c.first_cycle.unwrap_or(0),
         c.last_cycle.unwrap_or(0),
-        run.x_range().1 - run.x_range().0,
+        run.span().1 - run.span().0,
         run.period_us
     );
     if c.dropped > 0 {
@@ -1627,6 +1721,145 @@ mod tests {
         // The torque limits are on the torque axes.
         let tq = figs.iter().find(|f| f.name == "torques").unwrap();
         assert!(tq.panels[1].y.1 >= 25.0 && tq.panels[1].y.0 <= -20.0);
+    }
+
+    /// Fail-safe steps written while SERVO held its data (a hung cycle):
+    /// their servo fields are unknown and 0 in the record. The analysis
+    /// places them by their tick, draws only what they carry (the torques
+    /// at the motors), and never a pose, force or speed of 0.
+    #[test]
+    fn fail_safe_steps_with_unknown_pose_are_not_drawn_as_a_pose() {
+        use hap_core::servo::log_flags::POSE_UNKNOWN;
+        let mut recs = scripted();
+        let last_tick = recs
+            .iter()
+            .filter(|r| r.mode != LogMode::FailSafe)
+            .map(|r| r.timing.tick)
+            .max()
+            .unwrap();
+        for r in recs.iter_mut().filter(|r| r.mode == LogMode::FailSafe) {
+            let step = r.fail_safe_step;
+            *r = LogRecord::ZERO;
+            r.mode = LogMode::FailSafe;
+            r.fail_safe_step = step;
+            r.flags = POSE_UNKNOWN;
+            r.timing.tick = last_tick + u64::from(step);
+        }
+        let run = Run::new(&recs, PERIOD_US, 0);
+        let fs: Vec<u64> = run
+            .events
+            .iter()
+            .filter(|e| matches!(e.kind, EventKind::FailSafeStep(_)))
+            .map(|e| e.cycle)
+            .collect();
+        assert_eq!(fs, vec![1000, 1001, 1002, 1003, 1004]);
+        let figs = run.figures();
+        let servo_t: Vec<f64> = run.t.clone();
+        for f in figs
+            .iter()
+            .filter(|f| f.name != "events" && f.name != "torques")
+        {
+            for p in &f.panels {
+                for l in &p.lines {
+                    for (x, _) in l.points.iter().filter(|q| q.1.is_finite()) {
+                        assert!(
+                            servo_t.contains(x),
+                            "{}/{}/{}: a point at {x} s, not a servo cycle",
+                            f.name,
+                            p.title,
+                            l.name
+                        );
+                    }
+                }
+            }
+        }
+        // The handle sits at x = 0.1 all run: a pose of 0 would pull the
+        // axis down to 0.
+        let traj = figs.iter().find(|f| f.name == "trajectory").unwrap();
+        assert!(traj.panels[0].y.0 > 0.05, "{:?}", traj.panels[0].y);
+        // The torques the motors applied at each step are drawn, at their
+        // steps' times.
+        let tq = figs.iter().find(|f| f.name == "torques").unwrap();
+        let at_steps = tq.panels[1]
+            .lines
+            .iter()
+            .find(|l| l.name == "applied at fail-safe steps")
+            .unwrap();
+        let want: Vec<(f64, f64)> = fs.iter().map(|c| (*c as f64 * 1e-3, 0.0)).collect();
+        assert_eq!(at_steps.points.len(), 5);
+        for (got, want) in at_steps.points.iter().zip(&want) {
+            assert!((got.0 - want.0).abs() < 1e-9 && got.1 == want.1, "{got:?}");
+        }
+        // A log holding only such steps still places them by their tick.
+        let only: Vec<LogRecord> = recs
+            .iter()
+            .filter(|r| r.mode == LogMode::FailSafe)
+            .copied()
+            .collect();
+        let run = Run::new(&only, PERIOD_US, 0);
+        assert_eq!(run.events.first().map(|e| e.cycle), Some(last_tick));
+    }
+
+    /// What the bitmap shows: a wide line with sharp reversals (the
+    /// commanded torque of a chattering joint) stays within its axis. Its
+    /// pixels lie between the rows of the two limit lines drawn at the
+    /// data's extremes (a joined wide polyline put miter spikes far past
+    /// them, out of the panel).
+    #[test]
+    fn a_wide_zigzag_stays_inside_its_axis() {
+        register_font();
+        let colour = RGBColor(120, 160, 255);
+        let pts: Vec<(f64, f64)> = (0..400)
+            .map(|i| (i as f64 * 1e-3, if i % 2 == 0 { 1.0 } else { -1.0 }))
+            .collect();
+        let mut line = Line::new("zigzag", colour, pts);
+        line.width = 4;
+        let panel = Panel::fit(
+            "zigzag",
+            "N·m",
+            vec![line],
+            vec![(1.0, "+".into()), (-1.0, "-".into())],
+        );
+        let fig = Figure {
+            name: "zigzag".into(),
+            title: "zigzag".into(),
+            x_label: "s".into(),
+            x: (0.0, 0.4),
+            panels: vec![panel],
+            markers: vec![],
+            columns: 1,
+        };
+        let (w, h) = (800u32, 400u32);
+        let mut buf = vec![0u8; (w * h * 3) as usize];
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+            draw_figure(&root, &fig).unwrap();
+            root.present().unwrap();
+        }
+        let px = |x: u32, y: u32| {
+            let i = ((y * w + x) * 3) as usize;
+            (buf[i], buf[i + 1], buf[i + 2])
+        };
+        let rows_of = |c: (u8, u8, u8)| -> Vec<u32> {
+            (0..h).filter(|y| (0..w).any(|x| px(x, *y) == c)).collect()
+        };
+        // The limit lines: grey rows (the widest grey runs).
+        let grey = (110u8, 110u8, 110u8);
+        let limit_rows: Vec<u32> = (0..h)
+            .filter(|y| (0..w).filter(|x| px(*x, *y) == grey).count() > (w / 2) as usize)
+            .collect();
+        let (top, bottom) = (*limit_rows.first().unwrap(), *limit_rows.last().unwrap());
+        assert!(bottom > top + 100, "{limit_rows:?}");
+        let rows = rows_of((colour.0, colour.1, colour.2));
+        assert!(!rows.is_empty(), "the line is drawn");
+        // Half the width (2 px) on either side of a limit, and the
+        // legend's sample (drawn inside the panel).
+        for y in rows {
+            assert!(
+                y + 3 >= top && y <= bottom + 3,
+                "line pixel at row {y}, limits at rows {top}..{bottom}"
+            );
+        }
     }
 
     #[test]

@@ -48,35 +48,55 @@ pub fn live_line(w: &[f64]) -> Result<String, String> {
 }
 
 /// CSV header matching [`csv_row`].
-pub const CSV_HEADER: &str = "cycle,time_us,mode,fail_safe_step,flags,status,alarms,vpr_age_cycles,hx,hy,hz,qx,qy,qz,qw,vx,vy,vz,user_fx,user_fy,user_fz,user_tx,user_ty,user_tz,coupling_fx,coupling_fy,coupling_fz,po_energy,link_gain,tick,wakeup_ns,exec_ns";
+pub const CSV_HEADER: &str = "cycle,time_us,mode,fail_safe_step,flags,status,alarms,vpr_age_cycles,hx,hy,hz,qx,qy,qz,qw,vx,vy,vz,user_fx,user_fy,user_fz,user_tx,user_ty,user_tz,coupling_fx,coupling_fy,coupling_fz,po_energy,link_gain,tick,wakeup_ns,exec_ns,tau_cmd_1,tau_cmd_2,tau_cmd_3,tau_cmd_4,tau_cmd_5,tau_cmd_6,tau_applied_1,tau_applied_2,tau_applied_3,tau_applied_4,tau_applied_5,tau_applied_6";
 
+/// A fail-safe step record written while SERVO held its data: its servo
+/// fields (cycle, time, pose, speeds, forces, commanded torques) are
+/// unknown, not zero.
+pub fn pose_unknown(r: &LogRecord) -> bool {
+    r.mode == LogMode::FailSafe && r.flags & hap_core::servo::log_flags::POSE_UNKNOWN != 0
+}
+
+/// One CSV line of a record; the fields of a [`pose_unknown`] record that
+/// it does not carry are left empty.
 pub fn csv_row(r: &LogRecord) -> String {
-    let f = |v: &[hap_core::fixed::Fx], prec: usize| -> String {
+    let unknown = pose_unknown(r);
+    let f = |v: &[hap_core::fixed::Fx], prec: usize, valid: bool| -> String {
         v.iter()
-            .map(|x| format!("{:.prec$}", x.to_f64()))
+            .map(|x| {
+                if valid {
+                    format!("{:.prec$}", x.to_f64())
+                } else {
+                    String::new()
+                }
+            })
             .collect::<Vec<_>>()
             .join(",")
     };
+    let k = !unknown;
+    let opt = |v: String| if k { v } else { String::new() };
     format!(
-        "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.6},{:.6},{},{},{}",
-        r.cycle,
-        r.time_us,
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+        opt(r.cycle.to_string()),
+        opt(r.time_us.to_string()),
         r.mode.name(),
         r.fail_safe_step,
         r.flags,
         r.status,
         r.alarms,
-        r.vpr_age_cycles,
-        f(&r.handle_position.to_array(), 6),
-        f(&r.handle_orientation, 6),
-        f(&r.handle_velocity.to_array(), 5),
-        f(&r.user_wrench, 4),
-        f(&r.coupling_force.to_array(), 4),
-        r.po_energy.to_f64(),
-        r.link_gain.to_f64(),
+        opt(r.vpr_age_cycles.to_string()),
+        f(&r.handle_position.to_array(), 6, k),
+        f(&r.handle_orientation, 6, k),
+        f(&r.handle_velocity.to_array(), 5, k),
+        f(&r.user_wrench, 4, k),
+        f(&r.coupling_force.to_array(), 4, k),
+        opt(format!("{:.6}", r.po_energy.to_f64())),
+        opt(format!("{:.6}", r.link_gain.to_f64())),
         r.timing.tick,
         r.timing.wakeup_ns,
-        r.timing.exec_ns
+        r.timing.exec_ns,
+        f(&r.torque_command, 4, k),
+        f(&r.motor_torque, 4, true)
     )
 }
 
@@ -88,6 +108,9 @@ pub struct Continuity {
     pub records: u64,
     /// Fail-safe step records.
     pub fail_safe: u64,
+    /// Of those, records whose servo fields are unknown (SERVO held its
+    /// data as the step ran: [`pose_unknown`]).
+    pub pose_unknown: u64,
     /// Cycles missing between consecutive servo records (dropped by the ring).
     pub dropped: u64,
     /// Times the cycle count went back (module reloaded: a new run).
@@ -103,6 +126,9 @@ impl Continuity {
         self.records = self.records.saturating_add(1);
         if r.mode == LogMode::FailSafe {
             self.fail_safe = self.fail_safe.saturating_add(1);
+            if pose_unknown(r) {
+                self.pose_unknown = self.pose_unknown.saturating_add(1);
+            }
             return;
         }
         if let Some(last) = self.last_cycle {
@@ -130,12 +156,13 @@ impl Continuity {
     pub fn text(&self) -> String {
         let opt = |v: Option<u64>| v.map(|c| c.to_string()).unwrap_or_else(|| "-".into());
         format!(
-            "records: {}\nfirst_cycle: {}\nlast_cycle: {}\ndropped_records: {}\nfail_safe_records: {}\nrestarts: {}\n",
+            "records: {}\nfirst_cycle: {}\nlast_cycle: {}\ndropped_records: {}\nfail_safe_records: {}\nfail_safe_pose_unknown: {}\nrestarts: {}\n",
             self.records,
             opt(self.first_cycle),
             opt(self.last_cycle),
             self.dropped,
             self.fail_safe,
+            self.pose_unknown,
             self.restarts
         )
     }
@@ -281,5 +308,48 @@ mod tests {
         assert_eq!((recs.len(), bad), (1, 1));
         assert_eq!(recs[0].cycle, 42);
         assert!(csv_row(&recs[0]).starts_with("42,"));
+        let cols = CSV_HEADER.split(',').count();
+        assert_eq!(csv_row(&recs[0]).split(',').count(), cols);
+    }
+
+    /// A fail-safe step written while SERVO held its data: its pose is
+    /// unknown, and the CSV says so (empty fields), not 0; the torques the
+    /// motors apply (read from the motor line) are there.
+    #[test]
+    fn unknown_pose_is_not_written_as_zero() {
+        let mut r = LogRecord::ZERO;
+        r.mode = LogMode::FailSafe;
+        r.fail_safe_step = 1;
+        r.flags = hap_core::servo::log_flags::POSE_UNKNOWN;
+        r.timing.tick = 77;
+        r.motor_torque[2] = hap_core::fixed::Fx::from_f64(0.5);
+        assert!(pose_unknown(&r));
+        let c = Continuity::of(&[r, LogRecord { flags: 0, ..r }]);
+        assert_eq!((c.fail_safe, c.pose_unknown), (2, 1));
+        assert!(c.text().contains("fail_safe_pose_unknown: 1\n"));
+        let row = csv_row(&r);
+        let cols: Vec<&str> = row.split(',').collect();
+        let head: Vec<&str> = CSV_HEADER.split(',').collect();
+        assert_eq!(cols.len(), head.len(), "{row}");
+        let col = |n: &str| cols[head.iter().position(|h| *h == n).unwrap()];
+        for n in [
+            "cycle",
+            "time_us",
+            "hx",
+            "hy",
+            "hz",
+            "vx",
+            "coupling_fx",
+            "tau_cmd_1",
+        ] {
+            assert_eq!(col(n), "", "{n} in {row}");
+        }
+        assert_eq!(col("mode"), "fail_safe");
+        assert_eq!(col("tick"), "77");
+        assert_eq!(col("tau_applied_3"), "0.5000");
+        // The same record from an idle SERVO (flag clear) has its pose.
+        r.flags = 0;
+        assert!(!pose_unknown(&r));
+        assert_eq!(csv_row(&r).split(',').nth(8), Some("0.000000"));
     }
 }

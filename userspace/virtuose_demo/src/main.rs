@@ -598,7 +598,11 @@ fn run(args: Args) -> Result<(), String> {
                 args.linger
             );
             let _ = std::io::stdout().flush();
-            std::thread::sleep(Duration::from_secs(args.linger));
+            // SIGINT/SIGTERM set `stop`: the page goes down at once.
+            let end = Instant::now() + Duration::from_secs(args.linger);
+            while !stop.load(Ordering::Relaxed) && Instant::now() < end {
+                std::thread::sleep(Duration::from_millis(100));
+            }
         }
     }
     Ok(())
