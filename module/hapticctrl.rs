@@ -87,7 +87,7 @@ module! {
     params: {
         period_us: u32 {
             default: 1000,
-            description: "Servo period in microseconds (250..=10000)",
+            description: "Servo period in microseconds (100..=10000)",
         },
         allow_non_rt: bool {
             default: false,

@@ -2,8 +2,8 @@
 # The safety campaign at the motors, full size (host, release build):
 #   scripts/bench-safety.sh [--runs N] [--cycles C]
 # N randomized runs (default 12) of C cycles (default 30000) at each of
-# 250 us, 1 ms and 10 ms through hap_core::cycle::ServoCycle::run (default:
-# 1.08*10^6 cycles), deterministic seeds. Every run asserts, on the torque
+# 250 us, 1 ms, 10 ms and 100 us through hap_core::cycle::ServoCycle::run
+# (default: 1.44*10^6 cycles), deterministic seeds. Every run asserts, on the torque
 # the motors apply and on the handle's motion: coupling energy >= rounding,
 # force/torque/speed bounds, link fade and ramps, torque 0 after a fail-safe
 # cut (see Documentation/control.md). Prints the figures; a violated

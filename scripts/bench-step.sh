@@ -3,8 +3,12 @@
 #   scripts/bench-step.sh [--no-rt] [--rt-seconds S] [--period-us P] [--load]
 # (a) callgrind: instructions per full cycle (hap_core::cycle::ServoCycle +
 #     answer encoding + log record), = (Ir(K=2000) - Ir(K=1000)) / 1000 with
-#     the servo_steps example, so setup and process start cancel. Mode:
-#     host native, valgrind instruction count (deterministic).
+#     the servo_steps example, so setup and process start cancel; the
+#     controller alone (the full cycle less the simulated arm:
+#     Simulator::measures and Simulator::simulate_arm, their kinematics
+#     included); and the per-function split (inclusive Ir per cycle of the
+#     calls into each function). Mode: host native, valgrind instruction
+#     count (deterministic).
 # (b) `cargo bench -p hap-core --bench servo_step`: ns per servo step, host
 #     native wall clock (depends on the host and its load).
 # (c) unless --no-rt: the same cycle in a SCHED_FIFO 80 loop (absolute
@@ -34,6 +38,39 @@ for v in "$rt_s" "$period_us"; do
   case "$v" in ''|*[!0-9]*|0) echo "bench-step: '$v' is not a positive integer" >&2; exit 2 ;; esac
 done
 bash "$HERE/setup-toolchain.sh" --bench
+# Sum of the inclusive Ir of the calls into the functions whose name matches
+# the regular expression $2, from callers that do not match it (nested calls
+# are not counted twice), in the callgrind output file $1. Functions that the
+# compiler inlined have no calls of their own: count them through a caller.
+callgrind_calls() {
+  python3 - "$1" "$2" <<'PY'
+import re, sys
+path, pat = sys.argv[1], re.compile(sys.argv[2])
+names = {}
+def name(spec):
+    m = re.match(r'\((\d+)\)(?: (.*))?', spec)
+    if not m:
+        return spec
+    if m.group(2) is not None:
+        names[m.group(1)] = m.group(2)
+    return names.get(m.group(1), '')
+fn = cfn = ''
+total = 0
+pending = False
+for line in open(path):
+    if line.startswith('fn='):
+        fn = name(line[3:].strip())
+    elif line.startswith('cfn='):
+        cfn = name(line[4:].strip())
+    elif line.startswith('calls='):
+        pending = True
+    elif pending:
+        pending = False
+        if pat.search(cfn) and not pat.search(fn):
+            total += int(line.split()[1])
+print(total)
+PY
+}
 stamp=$(date -u +%Y%m%dT%H%M%SZ)
 mkdir -p "$out/step-$stamp"
 report="$out/step-$stamp/report.txt"
@@ -52,8 +89,28 @@ if command -v valgrind >/dev/null; then
     ir[$k]=$(sed -n 's/.*Collected : \([0-9]*\).*/\1/p' "$out/step-$stamp/callgrind.$k.err")
   done
   echo "Ir(K=1000) = ${ir[1000]}, Ir(K=2000) = ${ir[2000]}"
-  echo "instructions per servo cycle [host native, callgrind]: $(( (ir[2000] - ir[1000]) / 1000 ))"
-  echo "(callgrind_annotate $out/step-$stamp/callgrind.servo_steps.2000 | head -40 for the per-function split)"
+  full=$(( (ir[2000] - ir[1000]) / 1000 ))
+  echo "instructions per servo cycle [host native, callgrind]: $full"
+  # Inclusive Ir per cycle of the calls into the functions matching $1.
+  per_cycle() {
+    local a b
+    a=$(callgrind_calls "$out/step-$stamp/callgrind.servo_steps.1000" "$1")
+    b=$(callgrind_calls "$out/step-$stamp/callgrind.servo_steps.2000" "$1")
+    echo $(( (b - a) / 1000 ))
+  }
+  sim=$(per_cycle 'hap_core::simulator::Simulator::(measures|simulate_arm)$')
+  echo "instructions per cycle, controller alone (full cycle less the simulated arm) [host native, callgrind]: $(( full - sim ))"
+  echo "instructions per cycle, simulated arm (measures + simulate_arm) [host native, callgrind]: $sim"
+  echo "per-function split, inclusive instructions per cycle [host native, callgrind]:"
+  for f in 'hap_core::servo::Servo::step$' 'hap_core::simulator::Simulator::measures$' \
+           'hap_core::simulator::Simulator::simulate_arm$' 'hap_core::arm::kinematics' \
+           'hap_core::state_model::build_physical_state$' 'hap_core::control::cartesian_control$' \
+           'hap_core::fixed::Fx::sin_cos$' 'hap_core::fixed::Quat::from_mat3$' \
+           'hap_core::proto_synchro::Synchro::receive_vp$' 'hap_core::protocol::encode$' \
+           'hap_core::simulator::LogRecord::encode$'; do
+    printf '  %-50s %6d\n' "$(echo "$f" | sed 's/^hap_core:://; s/\$$//')" "$(per_cycle "$f")"
+  done
+  echo "(callgrind_annotate $out/step-$stamp/callgrind.servo_steps.2000 | head -40 for the self cost)"
 else
   echo "valgrind not installed (apt-get install -y valgrind): skipped"
 fi

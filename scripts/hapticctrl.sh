@@ -7,7 +7,7 @@
 # inside the minimal QEMU guest.
 #
 # Usage:
-#   hapticctrl.sh start [--period-us N] [MODULE_PARAM=VALUE ...]
+#   hapticctrl.sh start [--period-us N] [MODULE_PARAM=VALUE ...]   (N: 100..=10000 µs)
 #   hapticctrl.sh stop
 #   hapticctrl.sh status
 #
@@ -51,7 +51,7 @@ die() { echo "hapticctrl: error: $*" >&2; exit 1; }
 
 usage() {
     cat >&2 <<EOF
-usage: $0 start [--period-us N] [PARAM=VALUE ...]
+usage: $0 start [--period-us N (100..=10000)] [PARAM=VALUE ...]
        $0 stop
        $0 status
 EOF
@@ -126,6 +126,10 @@ start() {
         case "$period" in
             ''|*[!0-9]*) die "--period-us: '$period' is not a positive integer" ;;
         esac
+        # The module's range (hap_core::clock::PERIOD_MIN_US..=PERIOD_MAX_US).
+        if [ "${#period}" -gt 6 ] || [ "$period" -lt 100 ] || [ "$period" -gt 10000 ]; then
+            die "--period-us: $period out of range 100..=10000"
+        fi
         params="period_us=$period$params"
     fi
 

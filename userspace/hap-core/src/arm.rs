@@ -32,7 +32,7 @@
 //! `b_i` and Coulomb friction `fc_i` (linear below 0.01 rad/s), a stiff
 //! spring–damper stop at each position limit, and a motor torque limit.
 
-use super::fixed::{Fx, Joints, Mat3, Pose, Quat, Twist, Vec3, Wrench};
+use super::fixed::{Fx, Joints, Mat3, Pose, Quat, Twist, UnitFactor, Vec3, Wrench};
 
 /// Base yaw axis to shoulder, m.
 pub const H0: Fx = Fx::from_ratio(20, 100);
@@ -186,55 +186,187 @@ impl Kinematics {
     };
 }
 
-/// Squared distance from point `c` to the axis through `p` along unit `z`.
-const fn perp_sq(c: Vec3, p: Vec3, z: Vec3) -> Fx {
-    let r = c.sub(p);
-    let a = r.dot(z);
-    r.norm_sq().sub_sat(a.mul_sat(a)).max(Fx::ZERO)
+/// Which optional parts [`kinematics_with`] computes; a part left out keeps
+/// its [`Kinematics::ZERO`] value (identity orientation, rotor inertia).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Parts {
+    /// The handle orientation as a quaternion (`handle.orientation`).
+    pub orientation: bool,
+    /// The diagonal joint inertia.
+    pub inertia: bool,
 }
+
+impl Parts {
+    /// Everything.
+    pub const ALL: Parts = Parts {
+        orientation: true,
+        inertia: true,
+    };
+    /// What the simulated arm uses: rotation (force sensor), Jacobian
+    /// (user torques), gravity, inertia; not the quaternion.
+    pub const SIMULATOR: Parts = Parts {
+        orientation: false,
+        inertia: true,
+    };
+    /// What the state model and the controller use: the pose with its
+    /// quaternion, rotation, Jacobian, gravity; not the inertia.
+    pub const STATE_MODEL: Parts = Parts {
+        orientation: true,
+        inertia: false,
+    };
+}
+
+/// A Q2.30 raw value (30 fractional bits in an `i64`, see `fixed`'s
+/// "Formats inside the arm's kinematics"). Every kinematic quantity of this
+/// arm is below 2.3 in magnitude (axis and rotation entries ≤ 1, points and
+/// lever arms ≤ `H0 + L1 + L2 + L3` = 1.13 m), so a raw is below 2^31.2 and
+/// a product of two below 2^62.4: one 64-bit multiply, no saturation
+/// needed, wrapping operations that cannot wrap.
+type Q = i64;
+
+/// Q2.30 product, rounded to nearest (error ≤ 2^-31 = 4.7e-10, and
+/// unbiased: truncation would push every product the same way).
+const fn qm(a: Q, b: Q) -> Q {
+    a.wrapping_mul(b).wrapping_add(1 << 29) >> 30
+}
+
+/// Q32.32 → Q2.30 (drops two bits, toward −∞).
+const fn q_of(x: Fx) -> Q {
+    x.0 >> 2
+}
+
+/// Q2.30 → Q32.32 (exact: the result has two zero low bits, so a later
+/// [`Fx::mul_unit`] by it is exactly `mul_sat`).
+const fn fx_of(x: Q) -> Fx {
+    Fx(x << 2)
+}
+
+/// A 3-vector of Q2.30 raws.
+#[derive(Clone, Copy)]
+struct Q3 {
+    x: Q,
+    y: Q,
+    z: Q,
+}
+
+impl Q3 {
+    const ZERO: Q3 = Q3::new(0, 0, 0);
+
+    const fn new(x: Q, y: Q, z: Q) -> Q3 {
+        Q3 { x, y, z }
+    }
+
+    const fn add(self, o: Q3) -> Q3 {
+        Q3::new(
+            self.x.wrapping_add(o.x),
+            self.y.wrapping_add(o.y),
+            self.z.wrapping_add(o.z),
+        )
+    }
+
+    const fn sub(self, o: Q3) -> Q3 {
+        Q3::new(
+            self.x.wrapping_sub(o.x),
+            self.y.wrapping_sub(o.y),
+            self.z.wrapping_sub(o.z),
+        )
+    }
+
+    const fn scale(self, k: Q) -> Q3 {
+        Q3::new(qm(self.x, k), qm(self.y, k), qm(self.z, k))
+    }
+
+    const fn dot(self, o: Q3) -> Q {
+        qm(self.x, o.x)
+            .wrapping_add(qm(self.y, o.y))
+            .wrapping_add(qm(self.z, o.z))
+    }
+
+    const fn cross(self, o: Q3) -> Q3 {
+        Q3::new(
+            qm(self.y, o.z).wrapping_sub(qm(self.z, o.y)),
+            qm(self.z, o.x).wrapping_sub(qm(self.x, o.z)),
+            qm(self.x, o.y).wrapping_sub(qm(self.y, o.x)),
+        )
+    }
+
+    const fn fx(self) -> Vec3 {
+        Vec3::new(fx_of(self.x), fx_of(self.y), fx_of(self.z))
+    }
+}
+
+/// Weight of each body along z (−m·g), N.
+const WEIGHT: [Fx; 3] = [
+    MASS[0].mul_sat(GRAVITY).neg_sat(),
+    MASS[1].mul_sat(GRAVITY).neg_sat(),
+    MASS[2].mul_sat(GRAVITY).neg_sat(),
+];
 
 /// Forward kinematics, Jacobian, gravity torques and diagonal inertia.
 pub fn kinematics(q: &Joints) -> Kinematics {
-    let [q1, q2, q3, q4, q5, q6] = *q;
-    let (s1, c1) = q1.sin_cos();
-    let (s2, c2) = q2.sin_cos();
-    let (s23, c23) = q2.add_sat(q3).sin_cos();
-    let (s4, c4) = q4.sin_cos();
-    let (s5, c5) = q5.sin_cos();
-    let (s6, c6) = q6.sin_cos();
-    let r1 = Mat3::rot_z(s1, c1);
-    let r12 = r1.mul(&Mat3::rot_y(s2, c2));
-    let r123 = r1.mul(&Mat3::rot_y(s23, c23));
-    let r1234 = r123.mul(&Mat3::rot_x(s4, c4));
-    let r5 = r1234.mul(&Mat3::rot_y(s5, c5));
-    let r6 = r5.mul(&Mat3::rot_x(s6, c6));
+    kinematics_with(q, Parts::ALL)
+}
 
-    let p_s = Vec3::new(Fx::ZERO, Fx::ZERO, H0);
-    let x12 = r12.col(0);
-    let x123 = r123.col(0);
-    let x5 = r5.col(0);
-    let p_e = p_s.add(x12.scale(L1));
-    let p_w = p_e.add(x123.scale(L2));
-    let p_h = p_w.add(x5.scale(L3));
+/// Forward kinematics, Jacobian and gravity torques, plus the optional
+/// `parts`, in one evaluation at `q`.
+///
+/// Computed in Q2.30 (see [`Q`]): the frames come from the joint sines and
+/// cosines ([`Fx::sin_cos_unit`], 6 evaluations, `q2 + q3` as one angle)
+/// by elementary rotations, which touch two columns each, instead of full
+/// matrix products. Error against the f64 model (asserted in
+/// `tests/dynamics.rs`, bound 1e-7 for each): sines ≤ 1.3e-9, each Q2.30
+/// product ≤ 4.7e-10 (rounded), about ten products deep: handle 2.3e-9 m,
+/// Jacobian 3.9e-9, inertia 4.1e-9 kg·m², gravity (weights up to 9.8 N
+/// times Q2.30 lever arms) 3.7e-8 N·m, the largest errors over 2000 random
+/// configurations.
+#[inline(never)]
+pub fn kinematics_with(q: &Joints, parts: Parts) -> Kinematics {
+    let [q1, q2, q3, q4, q5, q6] = *q;
+    let sc = |a: Fx| {
+        let (s, c) = a.sin_cos_unit();
+        (q_of(s), q_of(c))
+    };
+    let (s1, c1) = sc(q1);
+    let (s2, c2) = sc(q2);
+    let (s23, c23) = sc(q2.add_sat(q3));
+    let (s4, c4) = sc(q4);
+    let (s5, c5) = sc(q5);
+    let (s6, c6) = sc(q6);
+    // Columns of R1 = Rz(q1), R1·Ry(q2), R1·Ry(q2+q3), then ·Rx(q4), ·Ry(q5),
+    // ·Rx(q6): R·Ry mixes columns x and z, R·Rx columns y and z.
+    let y1 = Q3::new(s1.wrapping_neg(), c1, 0);
+    let x12 = Q3::new(qm(c2, c1), qm(c2, s1), s2.wrapping_neg());
+    let x123 = Q3::new(qm(c23, c1), qm(c23, s1), s23.wrapping_neg());
+    let z123 = Q3::new(qm(s23, c1), qm(s23, s1), c23);
+    let y4 = y1.scale(c4).add(z123.scale(s4));
+    let z4 = z123.scale(c4).sub(y1.scale(s4));
+    let x5 = x123.scale(c5).sub(z4.scale(s5));
+    let z5 = x123.scale(s5).add(z4.scale(c5));
+    let y6 = y4.scale(c6).add(z5.scale(s6));
+    let z6 = z5.scale(c6).sub(y4.scale(s6));
+
+    let p_s = Q3::new(0, 0, q_of(H0));
+    let p_e = p_s.add(x12.scale(q_of(L1)));
+    let p_w = p_e.add(x123.scale(q_of(L2)));
+    let p_h = p_w.add(x5.scale(q_of(L3)));
 
     // Joint axes (world) and points on them.
-    let z = [Vec3::Z, r1.col(1), r1.col(1), x123, r1234.col(1), r6.col(0)];
-    let p = [Vec3::ZERO, p_s, p_e, p_w, p_w, p_w];
+    let z = [Q3::new(0, 0, 1 << 30), y1, y1, x123, y4, x5];
+    let p = [Q3::ZERO, p_s, p_e, p_w, p_w, p_w];
 
     let mut jacobian = [Twist::ZERO; 6];
     for ((col, zi), pi) in jacobian.iter_mut().zip(z.iter()).zip(p.iter()) {
         *col = Twist {
-            linear: zi.cross(p_h.sub(*pi)),
-            angular: *zi,
+            linear: zi.cross(p_h.sub(*pi)).fx(),
+            angular: zi.fx(),
         };
     }
 
     // Centres of mass and the joints each body is distal to.
-    let half = Fx::HALF;
     let com = [
-        p_s.add(x12.scale(L1.mul_sat(half))),
-        p_e.add(x123.scale(L2.mul_sat(half))),
-        p_w.add(x5.scale(L3.mul_sat(half))),
+        p_s.add(x12.scale(q_of(L1) >> 1)),
+        p_e.add(x123.scale(q_of(L2) >> 1)),
+        p_w.add(x5.scale(q_of(L3) >> 1)),
     ];
     // body k is moved by joints 0..=last_joint[k]
     let last_joint = [1usize, 2, 5];
@@ -248,42 +380,74 @@ pub fn kinematics(q: &Joints) -> Kinematics {
             .zip(inertia.iter_mut())
             .zip(z.iter().zip(p.iter())),
     ) {
-        for ((c, m), lj) in com.iter().zip(MASS.iter()).zip(last_joint.iter()) {
+        let mut moment_of_inertia: Q = 0;
+        for (((c, w), m), lj) in com
+            .iter()
+            .zip(WEIGHT.iter())
+            .zip(MASS.iter())
+            .zip(last_joint.iter())
+        {
             if i <= *lj {
-                let f = Vec3::new(Fx::ZERO, Fx::ZERO, m.mul_sat(GRAVITY).neg_sat());
-                *g = g.add_sat(zi.dot(c.sub(*pi).cross(f)));
-                *inn = inn.add_sat(m.mul_sat(perp_sq(*c, *pi, *zi)));
+                // z·(r × (0, 0, w)) = w·(z_x·r_y − z_y·r_x)
+                let r = c.sub(*pi);
+                let lever = qm(zi.x, r.y).wrapping_sub(qm(zi.y, r.x));
+                *g = g.add_sat(w.mul_unit(fx_of(lever)));
+                if parts.inertia {
+                    // squared distance to the axis: |r|² − (r·z)²
+                    let a = r.dot(*zi);
+                    let d2 = r.dot(r).wrapping_sub(qm(a, a)).max(0);
+                    moment_of_inertia = moment_of_inertia.wrapping_add(qm(q_of(*m), d2));
+                }
             }
         }
+        *inn = inn.add_sat(fx_of(moment_of_inertia));
     }
 
+    let handle_rot = Mat3::from_cols(x5.fx(), y6.fx(), z6.fx());
     Kinematics {
         handle: Pose {
-            position: p_h,
-            orientation: Quat::from_mat3(&r6),
+            position: p_h.fx(),
+            orientation: if parts.orientation {
+                Quat::from_mat3(&handle_rot)
+            } else {
+                Quat::IDENTITY
+            },
         },
-        handle_rot: r6,
+        handle_rot,
         jacobian,
         gravity,
         inertia,
     }
 }
 
-/// `J · q̇`: the handle twist for joint speeds `qd`.
+/// `J · q̇`: the handle twist for joint speeds `qd`. `j`'s entries are at
+/// most 2 in magnitude (this arm's: ≤ 1.13), so the products are
+/// [`Fx::mul_unit`]'s, two multiplies each with each speed split once
+/// (`fixed::UnitFactor`: speeds clamped to ±2^27): exactly `mul_sat` for
+/// the Jacobian of [`kinematics`], and the sums cannot overflow.
 pub fn jacobian_mul(j: &[Twist; 6], qd: &Joints) -> Twist {
-    let mut t = Twist::ZERO;
+    let mut t = [0i64; 6];
     for (col, v) in j.iter().zip(qd.iter()) {
-        t = t.add(&col.scale(*v));
+        let f = UnitFactor::new(*v);
+        for (o, u) in t.iter_mut().zip(col.to_array().iter()) {
+            *o = o.wrapping_add(f.mul(*u));
+        }
     }
-    t
+    Twist::from_array(t.map(Fx))
 }
 
 /// `Jᵀ · w`: joint torques producing the handle wrench `w` (force at the
-/// handle point, torque), base frame.
+/// handle point, torque), base frame. Products as in [`jacobian_mul`]
+/// (wrench components clamped to ±2^27 N, N·m).
 pub fn jacobian_transpose_mul(j: &[Twist; 6], w: &Wrench) -> Joints {
+    let f = w.to_array().map(UnitFactor::new);
     let mut tau = [Fx::ZERO; 6];
     for (t, col) in tau.iter_mut().zip(j.iter()) {
-        *t = col.power(w);
+        let mut s = 0i64;
+        for (fi, u) in f.iter().zip(col.to_array().iter()) {
+            s = s.wrapping_add(fi.mul(*u));
+        }
+        *t = Fx(s);
     }
     tau
 }

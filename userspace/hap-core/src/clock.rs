@@ -21,8 +21,8 @@ pub const MISS_LIMIT: u32 = 5;
 /// auxiliary (degraded) path: 100 cycles = 100 ms at the default 1 kHz.
 pub const DEGRADED_EXIT_GOOD_CYCLES: u32 = 100;
 
-/// Shortest accepted servo period, µs (4 kHz).
-pub const PERIOD_MIN_US: u32 = 250;
+/// Shortest accepted servo period, µs (10 kHz).
+pub const PERIOD_MIN_US: u32 = 100;
 /// Longest accepted servo period, µs (100 Hz).
 pub const PERIOD_MAX_US: u32 = 10_000;
 /// The spec's period, µs (1 kHz).
@@ -402,7 +402,8 @@ mod tests {
 
     #[test]
     fn period_validation_and_offset() {
-        assert_eq!(validate_period_us(249), Err(PeriodError::TooShort));
+        assert_eq!(validate_period_us(99), Err(PeriodError::TooShort));
+        assert_eq!(validate_period_us(100), Ok(100));
         assert_eq!(validate_period_us(250), Ok(250));
         assert_eq!(validate_period_us(10_000), Ok(10_000));
         assert_eq!(validate_period_us(10_001), Err(PeriodError::TooLong));

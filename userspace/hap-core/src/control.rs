@@ -410,6 +410,7 @@ fn fit_scale(base: Fx, add: Fx, lim: Fx) -> Fx {
 
 /// `cartesian_control`.
 #[allow(clippy::too_many_lines)]
+#[inline(never)]
 pub fn cartesian_control(
     ctrl: &mut Controller,
     ls: &LogicalState,
@@ -691,8 +692,9 @@ pub fn cartesian_control(
         }
     }
     let mut over = [false; 6];
-    // A bounded index range, not `enumerate()` (an overflow-checked counter).
-    for (i, ((t, qd), (start, b))) in (0..over.len()).zip(
+    // A bounded index range, not `enumerate()` (its counter is an
+    // overflow-checked addition: a panic path in the kernel).
+    for (i, ((t, qd), (start, b))) in (0..fixed.len()).zip(
         fixed
             .iter_mut()
             .zip(ps.qd.iter())
@@ -733,11 +735,14 @@ pub fn cartesian_control(
         }
         s = s.min(fit_scale(*tf, *tc, *lim));
     }
-    if s < Fx::ONE {
+    let tau_c = if s < Fx::ONE {
         alarms |= alarm::TORQUE_SATURATED;
         handle_wrench = handle_wrench.scale(s);
-    }
-    let tau_c = arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench);
+        arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench)
+    } else {
+        // The wrench is unchanged: so are its joint torques.
+        tau_c
+    };
     let mut joint_torques = JOINTS_ZERO;
     for (((o, tf), tc), lim) in joint_torques
         .iter_mut()

@@ -38,7 +38,7 @@ pub struct ServoCycle {
 }
 
 impl ServoCycle {
-    /// A servo cycle for `period_us` (250..=10000, see `clock::validate_period_us`).
+    /// A servo cycle for `period_us` (100..=10000, see `clock::validate_period_us`).
     pub const fn new(period_us: u32) -> ServoCycle {
         ServoCycle {
             servo: Servo::new(period_us.saturating_mul(1000)),

@@ -121,16 +121,18 @@ impl Simulator {
         &self.user
     }
 
-    /// Kinematics at the current configuration.
+    /// Kinematics at the current configuration (the parts the simulated arm
+    /// uses, [`arm::Parts::SIMULATOR`]: no handle quaternion).
     pub fn kinematics(&mut self) -> &Kinematics {
         if !self.kin_valid {
-            self.kin = arm::kinematics(&self.q);
+            self.kin = arm::kinematics_with(&self.q, arm::Parts::SIMULATOR);
             self.kin_valid = true;
         }
         &self.kin
     }
 
     /// The hardware's view of the arm now (`line`: the supply's state).
+    #[inline(never)]
     pub fn measures(&mut self, line: &MotorLine) -> Measures {
         let user = self.user;
         let rot = self.kinematics().handle_rot;
@@ -138,8 +140,8 @@ impl Simulator {
             encoders: self.q.map(arm::encoder_counts),
             joint_speeds: self.qd,
             force_sensor: Wrench {
-                force: rot.tmul_vec(user.wrench.force),
-                torque: rot.tmul_vec(user.wrench.torque),
+                force: rot.tmul_vec_unit(user.wrench.force),
+                torque: rot.tmul_vec_unit(user.wrench.torque),
             },
             power_on: line.supply_on(),
             dead_man: user.dead_man,
@@ -151,6 +153,7 @@ impl Simulator {
     /// `simulate_arm`: advance the arm by one servo period. The motors'
     /// torque is read from `line` at every sub-step.
     #[allow(clippy::needless_range_loop)]
+    #[inline(never)]
     pub fn simulate_arm(&mut self, line: &MotorLine) {
         let kin = *self.kinematics();
         let user_tau = arm::jacobian_transpose_mul(&kin.jacobian, &self.user.wrench);
@@ -173,8 +176,12 @@ impl Simulator {
                 let (q, qd) = (self.q[i], self.qd[i]);
                 let mut tau = base[i]
                     .add_sat(motor[i])
-                    .sub_sat(arm::DAMPING[i].mul_sat(qd))
-                    .sub_sat(arm::COULOMB[i].mul_sat(qd.mul_sat(coulomb_gain).clamp_abs(Fx::ONE)));
+                    .sub_sat(qd.mul_unit(arm::DAMPING[i]))
+                    .sub_sat(
+                        qd.mul_int(coulomb_gain)
+                            .clamp_abs(Fx::ONE)
+                            .mul_unit(arm::COULOMB[i]),
+                    );
                 if q > arm::Q_MAX[i] {
                     limit = true;
                     let t = arm::STOP_STIFFNESS[i]
@@ -200,7 +207,7 @@ impl Simulator {
 }
 
 /// 1 / `arm::COULOMB_LINEAR_SPEED`.
-const COULOMB_GAIN: Fx = Fx::from_int(100);
+const COULOMB_GAIN: i64 = 100;
 
 /// Which path produced a [`LogRecord`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

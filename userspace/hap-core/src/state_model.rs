@@ -87,7 +87,8 @@ pub struct PhysicalState {
     pub q: Joints,
     /// Joint speeds, rad/s.
     pub qd: Joints,
-    /// FK, Jacobian, gravity and inertia at `q`.
+    /// FK, Jacobian and gravity at `q` ([`arm::Parts::STATE_MODEL`]: the
+    /// inertia is the simulated arm's business, left at the rotor's).
     pub kin: Kinematics,
     /// Handle pose.
     pub handle: Pose,
@@ -98,13 +99,14 @@ pub struct PhysicalState {
 }
 
 /// `build_physical_state`.
+#[inline(never)]
 pub fn build_physical_state(m: &Measures) -> PhysicalState {
     let q = m.encoders.map(arm::encoder_angle);
-    let kin = arm::kinematics(&q);
+    let kin = arm::kinematics_with(&q, arm::Parts::STATE_MODEL);
     let twist = arm::jacobian_mul(&kin.jacobian, &m.joint_speeds);
     let wrench = Wrench {
-        force: kin.handle_rot.mul_vec(m.force_sensor.force),
-        torque: kin.handle_rot.mul_vec(m.force_sensor.torque),
+        force: kin.handle_rot.mul_vec_unit(m.force_sensor.force),
+        torque: kin.handle_rot.mul_vec_unit(m.force_sensor.torque),
     };
     PhysicalState {
         q,

@@ -7,6 +7,9 @@
 //! | `/` | |a| ≤ 1e4, 1e-3 ≤ |b| ≤ 1e4 | 1 LSB + 2^-52 relative |
 //! | `sqrt` | 0 ≤ x ≤ 2e9 | 2^-30 relative + 1 LSB |
 //! | `sin`, `cos` | |x| ≤ 1e4 | 4e-9 |
+//! | `sin_cos_unit` | |x| ≤ 1e4 | 3e-9, results ≤ 1 with 31 fractional bits |
+//! | `mul_unit` | |x| ≤ 1e4, |u| ≤ 2 | bit-identical to `*` for 30-bit factors; else |x|·2^-30 + 2 LSB |
+//! | `sqrt` (integer root) | any raw | the exact floor root of the normalised mantissa |
 //! | `atan2` | |x|,|y| ≤ 1e4 | 1e-8 rad |
 //! | `Quat::rotate`, `to_mat3`, `mul`, `Mat3` ops | unit quats, |v| ≤ 10 | 5e-8 |
 //! | `Quat::from_mat3`, `from_axis_angle` | random rotations | 5e-8 |
@@ -380,5 +383,81 @@ proptest! {
         if exact.abs() < (1i128 << 62) {
             prop_assert_eq!((Fx(a) / Fx(b)).0 as i128, exact);
         }
+    }
+}
+
+#[test]
+fn mul_unit_is_mul_for_q2_30_factors_and_close_otherwise() {
+    let mut r = rng();
+    let mut worst = 0f64;
+    for _ in 0..200_000 {
+        let x = Fx::from_f64(r.gen_range(-1e4..1e4));
+        let u = Fx::from_f64(r.gen_range(-2.0..2.0));
+        // A factor with 30 fractional bits: the very same product as `*`.
+        let u30 = Fx(u.0 & !3);
+        assert_eq!(x.mul_unit(u30), x * u30, "{x:?} * {u30:?}");
+        // Any factor: the dropped bits cost less than |x|·2^-30.
+        let e = (x.mul_unit(u).to_f64() - x.to_f64() * u.to_f64()).abs();
+        worst = worst.max(e);
+        assert!(
+            e <= x.to_f64().abs() * 2f64.powi(-30) + 2.0 * LSB,
+            "{x:?} * {u:?}: {e}"
+        );
+    }
+    // Extremes: saturation, and a factor beyond 2 is clamped, never wrapped.
+    assert_eq!(Fx::MAX.mul_unit(Fx::TWO), Fx::MAX);
+    assert_eq!(Fx::MIN.mul_unit(Fx::TWO), Fx::MIN);
+    assert_eq!(Fx::MIN.mul_unit(Fx::from_int(-2)), Fx::MAX);
+    assert_eq!(
+        Fx::from_int(3).mul_unit(Fx::from_int(1000)),
+        Fx::from_int(6)
+    );
+    assert_eq!(Fx::from_int(3).mul_unit(Fx::MIN), Fx::from_int(-6));
+    println!("mul_unit max abs error (any factor): {worst:.2e}");
+}
+
+#[test]
+fn sin_cos_unit_within_bound() {
+    let mut r = rng();
+    let (mut es, mut ec) = (0f64, 0f64);
+    for i in 0..400_000 {
+        let x = if i % 2 == 0 {
+            r.gen_range(-4.0..4.0)
+        } else {
+            r.gen_range(-1e4..1e4)
+        };
+        let a = Fx::from_f64(x);
+        let (s, c) = a.sin_cos_unit();
+        let xf = a.to_f64();
+        es = es.max((s.to_f64() - libm::sin(xf)).abs());
+        ec = ec.max((c.to_f64() - libm::cos(xf)).abs());
+        assert!(s.abs() <= Fx::ONE && c.abs() <= Fx::ONE, "{x}");
+        assert_eq!(s.0 & 1, 0);
+        assert_eq!(c.0 & 1, 0);
+    }
+    println!("sin_cos_unit max abs error: sin {es:.2e}, cos {ec:.2e}");
+    assert!(es <= 3e-9 && ec <= 3e-9, "{es} {ec}");
+}
+
+#[test]
+fn sqrt_is_the_floor_root() {
+    let mut r = rng();
+    for _ in 0..100_000 {
+        let raw: i64 = r.gen_range(1..i64::MAX);
+        let s = Fx(raw).sqrt().0 as u128;
+        // Fx::sqrt takes the integer root of the mantissa shifted left by
+        // an even k ≤ 32, then shifts it back: compare with the exact root.
+        let a = raw as u64;
+        let k = (a.leading_zeros() & !1).min(32);
+        let m = (a << k) as u128;
+        let f = (m as f64).sqrt() as u128;
+        let mut exact = f;
+        while exact * exact > m {
+            exact -= 1;
+        }
+        while (exact + 1) * (exact + 1) <= m {
+            exact += 1;
+        }
+        assert_eq!(s, exact << ((32 - k) / 2), "sqrt raw {raw}");
     }
 }

@@ -232,7 +232,7 @@ fn coupled_cycle(period_us: u32) -> (ServoCycle, MotorLine, ServoConfig, VpRecei
 
 #[test]
 fn plain_coupled_step_never_latches_passivity() {
-    for &us in &[250u32, 1000, 10_000] {
+    for &us in &[100u32, 250, 1000, 10_000] {
         let (mut c, line, cfg, mut vpr) = coupled_cycle(us);
         let mut coupled = 0;
         let mut pc = 0;
@@ -386,10 +386,10 @@ fn degraded_switches_inject_no_energy() {
 #[test]
 fn campaign_small_seed_set() {
     let mut all = campaign::Figures::new();
-    for (i, &us) in [250u32, 1000, 10_000].iter().enumerate() {
+    for (i, &us) in [250u32, 1000, 10_000, 100].iter().enumerate() {
         for seed in 0..2u64 {
             let cycles = match us {
-                250 => 12_000,
+                100 | 250 => 12_000,
                 1000 => 12_000,
                 _ => 6_000,
             };
@@ -405,7 +405,7 @@ fn campaign_small_seed_set() {
     // motors (and by the observer).
     assert!(all.worst_ledger > -1e-6, "{}", all.worst_ledger);
     assert!(all.worst_observer > -1e-6, "{}", all.worst_observer);
-    assert_eq!(all.runs, 6);
+    assert_eq!(all.runs, 8);
     assert_eq!(all.cut_nonzero, 0);
 }
 

@@ -30,8 +30,10 @@ struct Cli {
 enum Cmd {
     /// Start proto_interface then insert the module (runs the launch script).
     Start {
-        /// Servo period in µs (module parameter period_us).
-        #[arg(long, value_parser = clap::value_parser!(u32).range(100..=100_000))]
+        /// Servo period in µs (module parameter period_us, 100..=10000).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(
+            i64::from(hap_core::clock::PERIOD_MIN_US)..=i64::from(hap_core::clock::PERIOD_MAX_US)
+        ))]
         period_us: Option<u32>,
         /// The launch script (default: $HAPCTL_SCRIPT, else hapticctrl.sh next to hapctl, else from PATH).
         #[arg(long)]
