@@ -26,9 +26,11 @@
 #   HAP_INSECURE    1: no key, unauthenticated protocol v1 (proto_interface
 #                   --insecure; default 1 only if /etc/hapticctrl/insecure exists)
 #   HAP_USER        USER[:GROUP] the bridge runs as once it has read its key
-#                   (default: unset, the bridge keeps the user it was started as;
-#                   opt-in until the unprivileged bridge answers in the guest).
-#                   The two FIFO devices get that group and mode 0660.
+#                   (default: hapticctrl if /etc/passwd has that user; empty:
+#                   the bridge keeps the user it was started as). The two FIFO
+#                   devices get that group and mode 0660. With
+#                   HAP_PROTO_ARGS="--rt-priority N" it keeps CAP_SYS_NICE,
+#                   otherwise no capability.
 #
 # Without a key file and without HAP_INSECURE=1, start refuses.
 #
@@ -150,10 +152,13 @@ start() {
     else
         die "no key file $key (create one: hapctl keygen $key; copy it to the client) - or HAP_INSECURE=1 for unauthenticated v1"
     fi
-    # Least privilege is opt-in for now: in the QEMU guest a bridge dropped to
-    # an unprivileged user never answered a client (cause not found yet;
-    # tests/e2e/auth.sh), so the default keeps it as started.
+    # Least privilege: the bridge runs as the hapticctrl user unless told
+    # otherwise (HAP_USER=USER[:GROUP], or HAP_USER= to keep the user it is
+    # started as). It must be able to traverse / and /dev to its devices.
     user=${HAP_USER-}
+    if [ -z "${HAP_USER+x}" ] && grep -q '^hapticctrl:' /etc/passwd 2>/dev/null; then
+        user=hapticctrl
+    fi
     group=""
     stats="$RUN/proto_interface.stats"
     if [ -n "$user" ]; then

@@ -16,6 +16,10 @@ shift 3
 
 root=$(mktemp -d)
 trap 'rm -rf "$root"' EXIT
+# mktemp makes the directory 0700: as the archive's "." it would become the
+# guest's "/", which no unprivileged process (the bridge after its drop)
+# could traverse to reach /dev, /run or /etc.
+chmod 0755 "$root"
 mkdir -p "$root"/{bin,sbin,dev,proc,sys,tmp,run,etc,lib/modules,usr/bin,usr/sbin,tests,data}
 cp /bin/busybox "$root/bin/busybox"
 for applet in $("$root/bin/busybox" --list); do

@@ -32,8 +32,14 @@ done
 expect "a client opened and closed a session" "$(stat_value sessions_opened)" -ge 1
 usleep 500000
 echo "HAP-STATS-BEGIN"; cat /dev/hap_stats; echo "HAP-STATS-END"
+# The bridge's CPU time (all its threads, ns of guest time), for its cost
+# per frame.
+echo "HAP-BRIDGE-CPU-NS $(cat /proc/$bp/task/*/schedstat 2>/dev/null | awk '{ s += $1 } END { printf "%d", s }')"
 kill -USR1 "$(pidof proto_interface)" 2>/dev/null; usleep 300000
 echo "HAP-PROTO-BEGIN"; cat /run/proto_interface.stats 2>/dev/null; echo "HAP-PROTO-END"
+# The guest's UDP counters (the bridge's socket is the only one): datagrams
+# delivered to it and dropped for a full receive buffer.
+echo "HAP-UDP $(awk '/^Udp:/ { if (!h) { split($0, k); h = 1 } else { for (i = 2; i <= NF; i++) printf "%s=%s ", k[i], $i } }' /proc/net/snmp)"
 # The stop request runs the fail-safe, which closes the position log: the
 # recorder drains it and exits.
 echo 1 > /dev/hap_stop

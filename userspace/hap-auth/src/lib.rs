@@ -22,8 +22,8 @@ use std::io::Read;
 use std::path::Path;
 
 use hap_core::protocol::{
-    decode, seal_crc, DecodeError, Frame, FrameHeader, FrameType, SeqCheck, SeqWindow,
-    CTRL_ACK_REQUEST, ERROR_REFUSED, HEADER_LEN, MAGIC, MAX_FRAME_LEN,
+    decode, read_header, seal_crc, write_header, DecodeError, Frame, FrameHeader, FrameType,
+    SeqCheck, SeqWindow, CTRL_ACK_REQUEST, ERROR_REFUSED, HEADER_LEN, MAGIC, MAX_FRAME_LEN,
 };
 use hmac::{Hmac, Mac};
 use sha2::Sha256;
@@ -411,27 +411,6 @@ impl Wire {
     }
 }
 
-fn put_header(out: &mut [u8; MAX_FRAME_LEN], version: u8, ty: FrameType, h: &FrameHeader) {
-    out[0..2].copy_from_slice(&MAGIC);
-    out[2] = version;
-    out[3] = ty as u8;
-    out[4..6].copy_from_slice(&h.control.to_be_bytes());
-    out[6..8].copy_from_slice(&h.session.to_be_bytes());
-    out[8..12].copy_from_slice(&h.seq.to_be_bytes());
-    out[12..16].copy_from_slice(&h.timestamp_us.to_be_bytes());
-}
-
-fn read_header(b: &[u8]) -> FrameHeader {
-    let u16at = |i: usize| u16::from_be_bytes([b[i], b[i + 1]]);
-    let u32at = |i: usize| u32::from_be_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-    FrameHeader {
-        control: u16at(4),
-        session: u16at(6),
-        seq: u32at(8),
-        timestamp_us: u32at(12),
-    }
-}
-
 fn be32(b: &[u8], at: usize) -> u32 {
     u32::from_be_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
 }
@@ -447,7 +426,7 @@ fn seal_with(mac: &HmacSha256, ty: FrameType, h: &FrameHeader, payload: &[u8]) -
         len: frame_len(ty),
     };
     debug_assert_eq!(payload.len(), payload_len(ty));
-    put_header(&mut w.buf, VERSION, ty, h);
+    write_header(&mut w.buf, VERSION, ty, h);
     let body = HEADER_LEN + payload.len();
     w.buf[HEADER_LEN..body].copy_from_slice(payload);
     let t = tag(mac, &w.buf[..body], tag_len(ty));
@@ -550,7 +529,7 @@ fn v1_from_payload(ty: FrameType, h: &FrameHeader, payload: &[u8]) -> Option<Wir
         buf: [0u8; MAX_FRAME_LEN],
         len,
     };
-    put_header(&mut w.buf, hap_core::protocol::VERSION, ty, h);
+    write_header(&mut w.buf, hap_core::protocol::VERSION, ty, h);
     w.buf
         .get_mut(HEADER_LEN..HEADER_LEN + payload.len())?
         .copy_from_slice(payload);
@@ -698,7 +677,7 @@ impl Gate {
         if !ty.is_request() {
             return Err(Refusal::NotARequest);
         }
-        let header = read_header(b);
+        let header = read_header(b).ok_or(Refusal::Undersize)?;
         let mut wire = Wire {
             buf: [0u8; MAX_FRAME_LEN],
             len: b.len(),
@@ -947,7 +926,7 @@ impl ClientAuth {
         if ty.is_request() {
             return Err(Refusal::NotARequest);
         }
-        let h = read_header(b);
+        let h = read_header(b).ok_or(Refusal::Undersize)?;
         let tl = tag_len(ty);
         if ty == FrameType::SessionAck {
             let nc = self.pending.ok_or(Refusal::NoSession)?;

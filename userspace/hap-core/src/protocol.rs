@@ -624,6 +624,44 @@ fn put_payload(e: &mut Encoder<'_>, frame: &Frame) -> Result<(), XdrError> {
     }
 }
 
+fn put_header(
+    e: &mut Encoder<'_>,
+    version: u8,
+    ty: FrameType,
+    h: &FrameHeader,
+) -> Result<(), XdrError> {
+    e.put_bytes(&MAGIC)?;
+    e.put_bytes(&[version, ty as u8])?;
+    e.put_bytes(&h.control.to_be_bytes())?;
+    e.put_bytes(&h.session.to_be_bytes())?;
+    e.put_u32(h.seq)?;
+    e.put_u32(h.timestamp_us)
+}
+
+/// Write the 16-byte frame header at the start of `out`: magic "HC",
+/// `version`, the type, then control, session, sequence number and
+/// timestamp, big-endian (protocol.md §2; version 2 keeps this layout).
+/// Returns false, having written nothing whole, if `out` is shorter than
+/// [`HEADER_LEN`].
+pub fn write_header(out: &mut [u8], version: u8, ty: FrameType, h: &FrameHeader) -> bool {
+    if out.len() < HEADER_LEN {
+        return false;
+    }
+    put_header(&mut Encoder::new(out), version, ty, h).is_ok()
+}
+
+/// The sender's header fields (control, session, sequence number,
+/// timestamp) of a frame's first 16 bytes; `None` if there are fewer.
+/// Magic, version and type (offsets 0–3) are not checked here.
+pub fn read_header(bytes: &[u8]) -> Option<FrameHeader> {
+    Some(FrameHeader {
+        control: be16(bytes, 4)?,
+        session: be16(bytes, 6)?,
+        seq: be32(bytes, 8)?,
+        timestamp_us: be32(bytes, 12)?,
+    })
+}
+
 fn encode_inner(
     h: &FrameHeader,
     frame: &Frame,
@@ -632,12 +670,7 @@ fn encode_inner(
     let ty = frame.frame_type();
     let len = ty.frame_len();
     let mut e = Encoder::new(&mut out[..]);
-    e.put_bytes(&MAGIC)?;
-    e.put_bytes(&[VERSION, ty as u8])?;
-    e.put_bytes(&h.control.to_be_bytes())?;
-    e.put_bytes(&h.session.to_be_bytes())?;
-    e.put_u32(h.seq)?;
-    e.put_u32(h.timestamp_us)?;
+    put_header(&mut e, VERSION, ty, h)?;
     put_payload(&mut e, frame)?;
     let body = e.position();
     if body.checked_add(CRC_LEN) != Some(len) {
@@ -882,12 +915,7 @@ pub fn decode(bytes: &[u8]) -> Result<(FrameHeader, Frame), DecodeError> {
     if len != ty.frame_len() {
         return Err(DecodeError::LengthMismatch);
     }
-    let header = FrameHeader {
-        control: be16(bytes, 4).ok_or(DecodeError::TooShort)?,
-        session: be16(bytes, 6).ok_or(DecodeError::TooShort)?,
-        seq: be32(bytes, 8).ok_or(DecodeError::TooShort)?,
-        timestamp_us: be32(bytes, 12).ok_or(DecodeError::TooShort)?,
-    };
+    let header = read_header(bytes).ok_or(DecodeError::TooShort)?;
     if header.control & !CTRL_KNOWN != 0 {
         return Err(DecodeError::BadFlags);
     }
@@ -1102,6 +1130,34 @@ mod tests {
         assert_eq!(w.newest(), Some(1));
         // A jump of more than half the space is "older": refused.
         assert_eq!(w.accept(1u32.wrapping_add(0x8000_0000)), SeqCheck::TooOld);
+    }
+
+    #[test]
+    fn header_codec_round_trip_and_short_buffers() {
+        let h = FrameHeader {
+            control: CTRL_ACK_REQUEST,
+            session: 0x1234,
+            seq: 0xdead_beef,
+            timestamp_us: 7,
+        };
+        let mut out = [0u8; MAX_FRAME_LEN];
+        assert!(write_header(&mut out, 2, FrameType::VprStream, &h));
+        assert_eq!(
+            out[..HEADER_LEN],
+            [0x48, 0x43, 2, 0x0c, 0, 1, 0x12, 0x34, 0xde, 0xad, 0xbe, 0xef, 0, 0, 0, 7]
+        );
+        assert_eq!(read_header(&out), Some(h));
+        // The header `encode` writes is the same.
+        let mut enc = [0u8; MAX_FRAME_LEN];
+        let n = encode(&h, &Frame::PowerRequest(true), &mut enc);
+        assert!(write_header(&mut out, VERSION, FrameType::PowerRequest, &h));
+        assert_eq!(enc[..HEADER_LEN], out[..HEADER_LEN]);
+        assert_eq!(read_header(&enc[..n]), Some(h));
+        for short in 0..HEADER_LEN {
+            let mut b = [0u8; HEADER_LEN];
+            assert!(!write_header(&mut b[..short], 2, FrameType::VprStream, &h));
+            assert_eq!(read_header(&out[..short]), None);
+        }
     }
 
     #[test]

@@ -411,12 +411,19 @@ fn authenticated(
             Step::Refused(r)
         }
         Decision::Forward => {
-            let ns = match hap_auth::fresh_nonce() {
-                Ok(n) => n,
-                Err(e) => {
-                    shared.set_fatal(format!("/dev/urandom: {e}"));
-                    return Step::Done;
+            // The controller's nonce is used by an open_session only: drawing
+            // it for every frame cost an open/read/close of /dev/urandom per
+            // verified datagram.
+            let ns = if i.kind == Kind::Open {
+                match hap_auth::fresh_nonce() {
+                    Ok(n) => n,
+                    Err(e) => {
+                        shared.set_fatal(format!("/dev/urandom: {e}"));
+                        return Step::Done;
+                    }
                 }
+            } else {
+                [0u8; hap_auth::NONCE_LEN]
             };
             Counters::inc(&shared.counters.verified);
             match g.commit(&i, ns) {

@@ -58,6 +58,18 @@ struct Args {
     /// --duration.
     #[arg(long, default_value_t = 0)]
     samples: u64,
+    /// With --duration: go on after it until this many answers have been
+    /// received (0: stop at --duration), at most --max-duration seconds.
+    #[arg(long, default_value_t = 0)]
+    answers: u64,
+    /// Hard limit of the run, seconds (0: none).
+    #[arg(long, default_value_t = 0.0)]
+    max_duration: f64,
+    /// Stream at most this many VprStream frames ahead of the answers
+    /// received (0: no pacing; the client sends at --rate whatever the
+    /// controller consumes).
+    #[arg(long, default_value_t = 4)]
+    window: u64,
     /// Link benchmark: record every round trip and write rtt_hist.csv and
     /// rate.csv next to summary.txt (needs --results), with percentiles and
     /// guest-time figures in the summary.
@@ -281,6 +293,24 @@ fn init(vc: &mut VirtContext, dt: f32, mass: f32) -> Result<(), virtuose_api::Vi
     Ok(())
 }
 
+/// Wait (at most `timeout`) for an answer computed at least two servo cycles
+/// after the first answer that arrives from now on.
+fn fresh_answer(vc: &VirtContext, timeout: Duration) {
+    let t = Instant::now();
+    if !vc.wait_answer(timeout) {
+        return;
+    }
+    let Ok(c0) = vc.get_cycle() else { return };
+    while t.elapsed() < timeout {
+        match vc.get_cycle() {
+            Ok(c) if c.wrapping_sub(c0) >= 2 && c.wrapping_sub(c0) < u32::MAX / 2 => return,
+            _ => {
+                vc.wait_answer(Duration::from_millis(20));
+            }
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
     match run(args) {
@@ -349,7 +379,14 @@ fn run(args: Args) -> Result<(), String> {
     );
     init(&mut vc, dt as f32, world.a.mass as f32).map_err(|e| format!("initialisation: {e}"))?;
 
-    // Start sphere A where the handle is.
+    // Start sphere A where the handle is, in the base frame just set: the
+    // answer held now may have been computed before the controller applied
+    // it (the handle then still in the arm's frame, here 0.56 m below the
+    // scene's floor, where the box's contact springs would throw the sphere
+    // out at full speed). The acks came after the frame was applied and
+    // answers arrive in order: an answer two servo cycles after the first
+    // one received from now on was computed with the new frame.
+    fresh_answer(&vc, Duration::from_secs(2));
     let t_wait = Instant::now();
     while vc.get_position().is_err() && t_wait.elapsed() < Duration::from_secs(2) {
         let p = [
@@ -395,6 +432,16 @@ fn run(args: Args) -> Result<(), String> {
     let (mut loops, mut loop_t, mut loop_hz) = (0u64, Instant::now(), 0.0);
     let (mut last_print, mut last_hist, mut last_csv) = (0.0f64, 0.0f64, -1.0f64);
     let (mut err_sum, mut err_n, mut err_max) = (0.0f64, 0u64, 0.0f64);
+    // Mean magnitude of the coupling force received over the same cycles:
+    // the spring's stretch that force needs is |F| / K.
+    let mut force_sum = 0.0f64;
+    // The same over the cycles where nothing but the coupling and the drag
+    // acts on the sphere (no wall, floor or sphere-B contact holding it
+    // back), with the handle's path over them: the lag of a free sphere.
+    let (mut free_sum, mut free_n, mut free_max) = (0.0f64, 0u64, 0.0f64);
+    let (mut free_path, mut free_time) = (0.0f64, 0.0f64);
+    let mut prev_t = 0.0f64;
+    let (mut last_answers, mut last_answer_t) = (0u64, 0.0f64);
     let (mut handle_travel, mut coupled_travel) = (0.0f64, 0.0f64);
     let mut prev_a = world.a.pos;
     let mut prev_h: Option<V3> = None;
@@ -414,11 +461,18 @@ fn run(args: Args) -> Result<(), String> {
             .truncate(b.rate_csv.find('\n').map_or(0, |i| i + 1));
     }
     let mut requests = 0u64;
+    let mut held = 0u64;
+    let mut silent = false;
+    let mut stale = 0u64;
+    let answers0 = vc.link_stats().answers;
 
     loop {
         let t = t0.elapsed().as_secs_f64();
         if stop.load(Ordering::Relaxed)
-            || (args.duration > 0.0 && t >= args.duration)
+            || (args.duration > 0.0
+                && t >= args.duration
+                && vc.link_stats().answers >= args.answers)
+            || (args.max_duration > 0.0 && t >= args.max_duration)
             || (args.samples > 0 && requests >= args.samples)
         {
             break;
@@ -434,7 +488,19 @@ fn run(args: Args) -> Result<(), String> {
             force = V3::new(f[0] as f64, f[1] as f64, f[2] as f64);
         }
         let power = vc.get_power_on().unwrap_or(false);
-        world.step(dt, force);
+        // The force is the spring's pull toward the VPr it was computed
+        // for. If that VPr left more than 100 ms ago (the round trip of the
+        // last echoed one plus the time since the last answer: the
+        // controller's own link-fade horizon), the loop is delayed beyond
+        // what the drag keeps passive (2·drag/K ≈ 0.1 s): it is not applied
+        // and the sphere is left to its drag (`stale_cycles`).
+        let loop_age_s = vc.link_stats().rtt_ms_last / 1000.0 + (t - last_answer_t);
+        let fresh = loop_age_s <= 0.1;
+        let applied = if fresh { force } else { V3::zeros() };
+        if !fresh {
+            stale += 1;
+        }
+        world.step(dt, applied);
         let a = world.a;
         let sp = [
             a.vel.x as f32,
@@ -445,18 +511,31 @@ fn run(args: Args) -> Result<(), String> {
             0.0,
         ];
         let _ = vc.set_speed(&sp);
-        // A sphere has no orientation to couple: it takes the handle's, so
-        // the coupling is a pure translation.
-        let _ = vc.set_position(&[
-            a.pos.x as f32,
-            a.pos.y as f32,
-            a.pos.z as f32,
-            handle_q[0],
-            handle_q[1],
-            handle_q[2],
-            handle_q[3],
-        ]);
-        requests += 1;
+        // Pacing: the controller answers once per servo cycle and uses only
+        // the newest target, so a client streaming faster than it consumes
+        // (an emulated guest running slower than real time) only fills the
+        // queues in front of it: its targets then reach the arm seconds
+        // late, and a spring delayed by more than 2·drag/K (~0.1 s here) is
+        // no longer passive: the sphere runs away. So stay at most
+        // `window` frames ahead of the answers; the newest pose goes out
+        // with the next answer.
+        let ahead = requests.saturating_sub(vc.link_stats().answers.saturating_sub(answers0));
+        if args.window == 0 || ahead < args.window {
+            // A sphere has no orientation to couple: it takes the handle's,
+            // so the coupling is a pure translation.
+            let _ = vc.set_position(&[
+                a.pos.x as f32,
+                a.pos.y as f32,
+                a.pos.z as f32,
+                handle_q[0],
+                handle_q[1],
+                handle_q[2],
+                handle_q[3],
+            ]);
+            requests += 1;
+        } else {
+            held += 1;
+        }
 
         // bookkeeping
         loops += 1;
@@ -465,17 +544,36 @@ fn run(args: Args) -> Result<(), String> {
             loops = 0;
             loop_t = Instant::now();
         }
-        if let Some(ph) = prev_h {
-            handle_travel += (handle - ph).norm();
-        }
+        let step = prev_h.map_or(0.0, |ph| (handle - ph).norm());
+        let dt_loop = t - prev_t;
+        handle_travel += step;
         prev_h = Some(handle);
         coupled_travel += (a.pos - prev_a).norm();
         prev_a = a.pos;
-        if t > 1.0 {
+        prev_t = t;
+        // A controller that stopped answering (fail-safe, guest gone) ends
+        // the run: nothing more can be measured.
+        let answers_now = vc.link_stats().answers;
+        if answers_now != last_answers {
+            (last_answers, last_answer_t) = (answers_now, t);
+        } else if t - last_answer_t > 5.0 {
+            println!("no answer for 5 s: the controller stopped answering");
+            silent = true;
+            break;
+        }
+        if t > 1.0 && fresh {
             let e = (handle - a.pos).norm();
             err_sum += e;
             err_n += 1;
+            force_sum += force.norm();
             err_max = err_max.max(e);
+            if world.contact_on_a.norm() == 0.0 && world.wall_on_a.norm() == 0.0 {
+                free_sum += e;
+                free_n += 1;
+                free_max = free_max.max(e);
+                free_path += step;
+                free_time += dt_loop;
+            }
         }
         if t - last_hist >= 0.05 || t - last_csv >= 0.01 || t - last_print >= 1.0 {
             let ls = vc.link_stats();
@@ -552,6 +650,7 @@ fn run(args: Args) -> Result<(), String> {
     let _ = writeln!(summary, "server: {server}");
     let _ = writeln!(summary, "duration_s: {dur:.3}");
     let _ = writeln!(summary, "vpr_sent: {}", ls.vpr_sent);
+    let _ = writeln!(summary, "vpr_held: {held}");
     let _ = writeln!(summary, "answers: {}", ls.answers);
     let _ = writeln!(
         summary,
@@ -574,6 +673,37 @@ fn run(args: Args) -> Result<(), String> {
         }
     );
     let _ = writeln!(summary, "coupling_error_max_m: {err_max:.6}");
+    let _ = writeln!(
+        summary,
+        "coupling_force_mean_n: {:.6}",
+        if err_n > 0 {
+            force_sum / err_n as f64
+        } else {
+            0.0
+        }
+    );
+    let _ = writeln!(
+        summary,
+        "free_coupling_error_mean_m: {:.6}",
+        if free_n > 0 {
+            free_sum / free_n as f64
+        } else {
+            0.0
+        }
+    );
+    let _ = writeln!(summary, "free_coupling_error_max_m: {free_max:.6}");
+    let _ = writeln!(summary, "free_samples: {free_n}");
+    let _ = writeln!(
+        summary,
+        "free_handle_speed_mean_m_s: {:.6}",
+        if free_time > 0.0 {
+            free_path / free_time
+        } else {
+            0.0
+        }
+    );
+    let _ = writeln!(summary, "controller_silent: {}", u8::from(silent));
+    let _ = writeln!(summary, "stale_cycles: {stale}");
     let _ = writeln!(summary, "handle_travel_m: {handle_travel:.5}");
     let _ = writeln!(summary, "coupled_travel_m: {coupled_travel:.5}");
     if let Some(b) = &bench {
@@ -604,6 +734,9 @@ fn run(args: Args) -> Result<(), String> {
                 std::thread::sleep(Duration::from_millis(100));
             }
         }
+    }
+    if silent {
+        return Err("the controller stopped answering (no answer for 5 s)".into());
     }
     Ok(())
 }

@@ -33,12 +33,16 @@ pub struct World {
     pub contact_k: f64,
     pub contact_c: f64,
     /// Viscous drag on the coupled sphere A, N·s/m. The coupling reaches the
-    /// client late (network + answer period, ~10 ms under emulation); a
-    /// spring K delayed by T stays passive only with damping b > K·T/2
-    /// (1500 N/m × 10 ms / 2 = 7.5 N·s/m), which this drag provides.
+    /// client late (network + answer period); a spring K delayed by T stays
+    /// passive only with damping b > K·T/2: with the controller's K_t at
+    /// 1 ms (203 N/m) this drag tolerates T < 2b/K ≈ 98 ms (the client
+    /// paces its stream so that queues cannot build such a delay). It also
+    /// sets the sphere's lag behind a handle moving at v: b·v/K (0.05 s × v).
     pub drag_a: f64,
     /// Last contact force applied on A by B (N), for display.
     pub contact_on_a: V3,
+    /// Last force of the box's walls and floor on A (N).
+    pub wall_on_a: V3,
 }
 
 impl Default for World {
@@ -63,6 +67,7 @@ impl Default for World {
             contact_c: 10.0,
             drag_a: 10.0,
             contact_on_a: V3::zeros(),
+            wall_on_a: V3::zeros(),
         }
     }
 }
@@ -109,15 +114,14 @@ impl World {
     /// contact force on A.
     pub fn step(&mut self, dt: f64, coupling: V3) -> V3 {
         let fc = self.sphere_contact();
-        let fa = coupling - self.a.vel * self.drag_a
-            + fc
-            + box_force(
-                &self.a,
-                self.floor_z,
-                self.half_width,
-                self.contact_k,
-                self.contact_c,
-            );
+        let fw = box_force(
+            &self.a,
+            self.floor_z,
+            self.half_width,
+            self.contact_k,
+            self.contact_c,
+        );
+        let fa = coupling - self.a.vel * self.drag_a + fc + fw;
         let fb = -fc
             + V3::new(0.0, 0.0, -self.gravity * self.b.mass)
             + box_force(
@@ -140,6 +144,7 @@ impl World {
             }
         }
         self.contact_on_a = fc;
+        self.wall_on_a = fw;
         fc
     }
 }
