@@ -73,11 +73,13 @@ impl Doorbell {
     }
 }
 
-/// Allocate `words` zeroed atomic words (vmalloc-backed when large).
-fn storage(words: usize) -> Result<KVVec<AtomicU64>> {
+/// Allocate `words` zeroed atomic words (vmalloc-backed when large), in one
+/// allocation.
+pub(crate) fn storage(words: usize) -> Result<KVVec<AtomicU64>> {
     let mut v = KVVec::with_capacity(words, GFP_KERNEL)?;
     for _ in 0..words {
-        v.push(AtomicU64::new(0), GFP_KERNEL)?;
+        v.push_within_capacity(AtomicU64::new(0))
+            .map_err(|_| ENOMEM)?;
     }
     Ok(v)
 }
