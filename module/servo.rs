@@ -109,11 +109,12 @@ pub(crate) fn calibrate(sh: &Shared) {
 }
 
 /// Append one record to the position log: refused (counted in
-/// `simlog.dropped`) when the log is full, never waits.
+/// `simlog.dropped`) when the log is full or CLOCK's fail-safe is pushing
+/// its step record at that moment; never waits.
 pub(crate) fn push_log(sh: &Shared, rec: &LogRecord) {
     let mut buf = [0u8; LogRecord::SIZE];
     rec.encode(&mut buf);
-    let _ = sh.simlog.push(&buf);
+    let _ = sh.simlog.try_push_exclusive(&buf);
 }
 
 fn ns_u32(ns: i64) -> u32 {

@@ -352,5 +352,7 @@ pub(crate) fn log_fail_safe_step(sh: &Shared, step: u8) {
     };
     let mut buf = [0u8; LogRecord::SIZE];
     rec.encode(&mut buf);
-    let _ = sh.simlog.push(&buf);
+    // SERVO may be mid-push (CLOCK preempted it): the record is refused and
+    // counted rather than waited for, since the next step cuts the motors.
+    let _ = sh.simlog.try_push_exclusive(&buf);
 }
