@@ -24,6 +24,7 @@ use crate::{
     hap_core::clock::{FailSafeAction, FailSafeCause, Supervisor, Verdict, FAIL_SAFE_SEQUENCE},
     hap_core::stats::{HapStats, WordSet},
     shared::{ControllerState, Shared},
+    time::Ktime,
 };
 use kernel::{
     impl_has_hr_timer,
@@ -38,7 +39,7 @@ use kernel::{
             AbsoluteHardMode, ArcHrTimerHandle, HrTimer, HrTimerCallback, HrTimerCallbackContext,
             HrTimerPointer, HrTimerRestart,
         },
-        Delta, Instant, Monotonic,
+        Delta, Monotonic,
     },
 };
 
@@ -66,9 +67,9 @@ pub(crate) struct Timers {
 
 impl Timers {
     pub(crate) fn start(shared: &Arc<Shared>) -> Result<Self> {
-        let period = Delta::from_nanos(shared.period_ns());
-        let first = Instant::<Monotonic>::now() + period;
-        let check_offset = Delta::from_nanos(shared.period_ns() / 4 * 3);
+        let period = shared.period_ns();
+        let first = Ktime::now().saturating_add_ns(period);
+        let check_first = first.saturating_add_ns(period / 4 * 3);
         let cycle = Arc::pin_init(
             pin_init!(CycleTimer { timer <- HrTimer::new(), shared: shared.clone() }),
             GFP_KERNEL,
@@ -78,8 +79,8 @@ impl Timers {
             GFP_KERNEL,
         )?;
         Ok(Timers {
-            _cycle: cycle.start(first),
-            _check: check.start(first + check_offset),
+            _cycle: cycle.start(first.to_instant()),
+            _check: check.start(check_first.to_instant()),
         })
     }
 }
@@ -92,7 +93,7 @@ impl HrTimerCallback for CycleTimer {
         if sh.is_stopping() {
             return HrTimerRestart::NoRestart;
         }
-        let expiry = sh.ns_of(this.timer.expires());
+        let expiry = sh.ns_of(Ktime::from_instant(this.timer.expires()));
         sh.expiry_ns.store(expiry, Release);
         let now = sh.now_ns();
         sh.tick_ns.store(now, Relaxed);
@@ -211,7 +212,7 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
             FailSafeAction::InhibitMotorCommands => sh.motor_line.fail_safe_inhibit(),
             FailSafeAction::PowerOffArm => sh.motor_line.power_off(),
             FailSafeAction::CloseProtocol => {
-                sh.proto.lock().close();
+                sh.close_protocol();
                 sh.rtf_out.close(true);
                 sh.rtf_replies.close(true);
                 sh.rtf_in.close(true);

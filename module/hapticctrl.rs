@@ -64,6 +64,7 @@ mod servo;
 mod shared;
 mod simulator;
 mod stats;
+mod time;
 mod uaccess;
 
 use clock::{Stop, Timers};
@@ -239,7 +240,7 @@ impl Drop for HapticCtrl {
         // the channels and free the memory.
         sh.motor_line.fail_safe_inhibit();
         sh.motor_line.power_off();
-        sh.proto.lock().close();
+        sh.close_protocol();
         sh.stopping.store(true, Release);
         sh.rtf_out.close(true);
         sh.rtf_replies.close(true);

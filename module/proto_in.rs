@@ -45,6 +45,8 @@ fn handle_frame(sh: &Shared, bytes: &[u8]) {
         None
     };
     let mut counters = *proto.counters();
+    // The VPr latch (SERVO's view of VPr and session), under `mtx_proto`.
+    sh.publish_vpr(&proto);
     drop(proto);
     {
         let w = sh.proto_pub.write();

@@ -1,11 +1,14 @@
 // SPDX-License-Identifier: GPL-2.0
 
-//! The synchronizer (the spec's hap_proto_synchro), in SERVO's context:
-//! try-lock `mtx_proto` to copy VPr (else hap-core extrapolates it), run the
-//! servo cycle, then try-lock `mtx_proto` again to encode the answer frames
-//! into rtf_out (skipped, and counted, when the lock is busy). Only PROTO_IN
-//! holds `mtx_proto` (no device takes it): monitoring cannot make SERVO skip
-//! an answer. rtf_out is a lock-free ring: a full one refuses the answer
+//! The synchronizer (the spec's hap_proto_synchro), in SERVO's context,
+//! without any lock: copy VPr from the VPr latch (`Shared::latest_vpr`, a
+//! seqcount PROTO_IN publishes under `mtx_proto` after each frame; if every
+//! read attempt overlaps a publication, hap-core extrapolates VPr), run the
+//! servo cycle, then read the latch's session again to encode the answer
+//! frames into rtf_out (skipped, and counted in `answers_skipped`, when the
+//! read overlaps a publication). SERVO never takes `mtx_proto`: neither
+//! PROTO_IN decoding a frame nor monitoring can make it wait or skip for a
+//! held lock. rtf_out is a lock-free ring: a full one refuses the answer
 //! (counted in `answers_dropped`), SERVO never waits for its reader.
 
 use crate::{
@@ -26,20 +29,17 @@ pub(crate) fn run_cycle(
     inputs: &ServoInputs,
     mode: ServoMode,
 ) -> CycleResult {
-    // receive_vp
-    let proto = sh.proto.try_lock();
-    let vpr = proto.as_ref().map(|p| *p.vpr());
-    drop(proto);
+    // receive_vp: the VPr latch (`None` while a publication is being
+    // written: hap-core extrapolates).
+    let vpr = sh.latest_vpr().map(|(_, v)| v);
     let config = data.config;
     let result = data.cycle.run(line, inputs, &config, vpr.as_ref(), mode);
 
-    // send_vp
-    let Some(proto) = sh.proto.try_lock() else {
+    // send_vp: the session as it is now (it may have closed meanwhile).
+    let Some((session, _)) = sh.latest_vpr() else {
         sh.answers_skipped.add(1, Relaxed);
         return result;
     };
-    let session = proto.session();
-    drop(proto);
     if session == 0 {
         return result;
     }

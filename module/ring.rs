@@ -73,11 +73,13 @@ impl Doorbell {
     }
 }
 
-/// Allocate `words` zeroed atomic words (vmalloc-backed when large).
-fn storage(words: usize) -> Result<KVVec<AtomicU64>> {
+/// Allocate `words` zeroed atomic words (vmalloc-backed when large), in one
+/// allocation.
+pub(crate) fn storage(words: usize) -> Result<KVVec<AtomicU64>> {
     let mut v = KVVec::with_capacity(words, GFP_KERNEL)?;
     for _ in 0..words {
-        v.push(AtomicU64::new(0), GFP_KERNEL)?;
+        v.push_within_capacity(AtomicU64::new(0))
+            .map_err(|_| ENOMEM)?;
     }
     Ok(v)
 }
@@ -100,6 +102,12 @@ pub(crate) struct Fifo<const REC: usize> {
     closed: AtomicBool,
     /// Closed and what is queued is dropped: readers see end of file at once.
     discarded: AtomicBool,
+    /// Held for the length of one push by [`Fifo::try_push_exclusive`]: the
+    /// position log has two real-time producers (SERVO's cycle record,
+    /// CLOCK's fail-safe step record) that must never wait for each other.
+    pushing: AtomicBool,
+    /// Records refused because the other producer was pushing.
+    busy_refused: AtomicU64,
 }
 
 /// Why a push was refused.
@@ -120,6 +128,8 @@ impl<const REC: usize> Fifo<REC> {
             sleepers: AtomicU32::new(0),
             closed: AtomicBool::new(false),
             discarded: AtomicBool::new(false),
+            pushing: AtomicBool::new(false),
+            busy_refused: AtomicU64::new(0),
         }))
     }
 
@@ -134,6 +144,25 @@ impl<const REC: usize> Fifo<REC> {
         }
         self.wake_readers();
         Ok(())
+    }
+
+    /// A push by one of two producers that never wait for each other
+    /// (CLOCK preempts SERVO on one CPU, so a wait could never end): the
+    /// one that finds the other mid-push is refused, and the record is
+    /// counted with the ring's refusals. One producer at a time keeps the
+    /// ring's single-producer protocol.
+    pub(crate) fn try_push_exclusive(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
+        if self
+            .pushing
+            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .is_err()
+        {
+            self.busy_refused.fetch_add(1, Ordering::Relaxed);
+            return Err(Refused::Full);
+        }
+        let r = self.push(rec);
+        self.pushing.store(false, Ordering::Release);
+        r
     }
 
     /// Ring the doorbell if a reader sleeps on it (after a push here, or in
@@ -224,8 +253,13 @@ impl<const REC: usize> Fifo<REC> {
         self.readable.ring_all();
     }
 
-    /// (records queued now, records pushed, records refused)
+    /// (records queued now, records pushed, records refused: full ring or,
+    /// for [`Fifo::try_push_exclusive`], the other producer pushing)
     pub(crate) fn counts(&self) -> (usize, u64, u64) {
-        (self.ring.len(), self.ring.pushed(), self.ring.dropped())
+        let refused = self
+            .ring
+            .dropped()
+            .saturating_add(self.busy_refused.load(Ordering::Relaxed));
+        (self.ring.len(), self.ring.pushed(), refused)
     }
 }

@@ -11,14 +11,17 @@
 //! the cycle handshake (`hap_core::handshake`); in `FailSafe` SERVO runs
 //! nothing and leaves.
 //!
-//! Locks inside the cycle: `mtx_data` (only SERVO takes it, and module init
-//! before the tasks start), a try-lock of `mtx_proto` (PROTO_IN's; no device
-//! takes it) and a try-read of the configuration rwsem (PROTO_IN's). No
-//! lock a system call can hold: rtf_out, the position log and the effort
-//! handoff are lock-free rings, a reader being stopped or preempted cannot
-//! delay SERVO. No allocation and no printk inside the cycle. Motor commands
-//! go through hap_io's motor line (`Shared::motor_line`), which is outside
-//! every lock: the fail-safe cuts it whatever SERVO is doing.
+//! Locks inside the cycle: `mtx_data` (SERVO's; module init takes it before
+//! the tasks start, the fail-safe only try-locks it) and a try-read of the
+//! configuration rwsem (PROTO_IN writes it). VPr and the session come from
+//! the VPr latch, a seqcount read without any lock: SERVO never takes
+//! `mtx_proto`. No lock a system call can hold: rtf_out, the position log
+//! and the effort handoff are lock-free rings, a reader being stopped or
+//! preempted cannot delay SERVO; SERVO rings their doorbells (a completion:
+//! a raw spinlock held for a bounded wake-up) only when a reader sleeps. No
+//! allocation and no printk inside the cycle. Motor commands go through
+//! hap_io's motor line (`Shared::motor_line`), which is outside every lock:
+//! the fail-safe cuts it whatever SERVO is doing.
 
 use crate::{
     completion::Wait,
@@ -36,7 +39,7 @@ use kernel::sync::atomic::{Acquire, Relaxed, Release};
 
 /// SERVO's thread body.
 pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Shared) {
-    // The protocol session, for the log (kept when the lock is busy).
+    // The protocol session, for the log (kept when the latch is being written).
     let mut session = 0u16;
     while !kt.should_stop() && !sh.is_stopping() {
         sh.cycle.set_servo_waiting(true);
@@ -72,8 +75,8 @@ pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Shared) {
         let mut rec = *data.cycle.servo.log_record();
         drop(data);
 
-        if let Some(p) = sh.proto.try_lock() {
-            session = p.session();
+        if let Some((s, _)) = sh.latest_vpr() {
+            session = s;
         }
         let end_ns = sh.now_ns();
         sh.servo_end_ns.store(end_ns, Release);
@@ -106,11 +109,12 @@ pub(crate) fn calibrate(sh: &Shared) {
 }
 
 /// Append one record to the position log: refused (counted in
-/// `simlog.dropped`) when the log is full, never waits.
+/// `simlog.dropped`) when the log is full or CLOCK's fail-safe is pushing
+/// its step record at that moment; never waits.
 pub(crate) fn push_log(sh: &Shared, rec: &LogRecord) {
     let mut buf = [0u8; LogRecord::SIZE];
     rec.encode(&mut buf);
-    let _ = sh.simlog.push(&buf);
+    let _ = sh.simlog.try_push_exclusive(&buf);
 }
 
 fn ns_u32(ns: i64) -> u32 {

@@ -19,11 +19,13 @@ use crate::{
         servo::PowerRequest,
         simulator::LogRecord,
         stats::{HapStats, STATS_WORDS},
+        vp::{VpReceived, VPR_WORDS},
     },
-    ring::{AtomicU64, Fifo},
+    ring::{storage, AtomicU64, Fifo},
     rtf::{RtfInCounters, RTF_FRAMES},
     rwsem::RwSem,
     simulator::{EffortScratch, EFFORT_RECORD_BYTES},
+    time::Ktime,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 use kernel::{
@@ -32,15 +34,15 @@ use kernel::{
     static_lock_class,
     sync::{
         atomic::{Atomic, Relaxed},
-        Arc, Mutex,
+        Arc, Mutex, MutexGuard,
     },
-    time::{Instant, Monotonic},
 };
 use pin_init::init_zeroed;
 
 /// SERVO's data (the spec's `data` structure, under `mtx_data`). Only SERVO
-/// takes `mtx_data` (and module init, for the calibration, before the tasks
-/// start); device writes reach SERVO through lock-free handoffs.
+/// locks `mtx_data` (and module init, for the calibration, before the tasks
+/// start); the fail-safe only try-locks it, to log SERVO's last record;
+/// device writes reach SERVO through lock-free handoffs.
 #[pin_data]
 pub(crate) struct ServoData {
     pub(crate) cycle: ServoCycle,
@@ -150,6 +152,16 @@ pub(crate) fn proto_words(
     w(session);
 }
 
+/// Words of the VPr latch: the session, then the `VpReceived`'s.
+pub(crate) const VPR_LATCH_WORDS: usize = 1 + VPR_WORDS;
+
+/// The session and a `VpReceived` as latch words (and back): word 0 is the
+/// session, then hap-core's walk of the VPr (host-tested round trip).
+fn vpr_words(session: &mut u64, v: &mut VpReceived, mut f: impl FnMut(usize, &mut u64)) {
+    f(0, session);
+    v.visit_words(|i, w| f(i.saturating_add(1), w));
+}
+
 /// A fixed array of atomic words (small publications, built inline).
 pub(crate) struct Words<const N: usize>([AtomicU64; N]);
 
@@ -166,19 +178,11 @@ impl<const N: usize> core::ops::Deref for Words<N> {
     }
 }
 
-fn atomic_words(n: usize) -> Result<KVVec<AtomicU64>> {
-    let mut v = KVVec::with_capacity(n, GFP_KERNEL)?;
-    for _ in 0..n {
-        v.push(AtomicU64::new(0), GFP_KERNEL)?;
-    }
-    Ok(v)
-}
-
 #[pin_data]
 pub(crate) struct Shared {
     pub(crate) period_us: u32,
     /// Time origin for every nanosecond stamp.
-    epoch: Instant<Monotonic>,
+    epoch: Ktime,
 
     /// Cycle start (the spec's `bar_clock`): CLOCK's timer → SERVO.
     #[pin]
@@ -202,11 +206,16 @@ pub(crate) struct Shared {
     pub(crate) rtf_in_counters: RtfInCounters,
 
     /// `mtx_proto`: the protocol state and the VPr shared memory. PROTO_IN
-    /// locks it; SERVO only try-locks it; no device takes it.
+    /// locks it for each frame, the fail-safe and rmmod to close; SERVO
+    /// never takes it (it reads the VPr latch) and no device takes it.
     #[pin]
     pub(crate) proto: Mutex<KBox<ProtoIn>>,
     /// PROTO_IN's counters and session, published after each frame.
     pub(crate) proto_pub: SeqWords<Words<PROTO_WORDS>>,
+    /// The VPr latch: the session and the latest VPr, published under
+    /// `mtx_proto` whenever they change (`Shared::publish_vpr`); SERVO reads
+    /// it without any lock (`Shared::latest_vpr`).
+    vpr_latch: SeqWords<Words<VPR_LATCH_WORDS>>,
     /// `mtx_data`: SERVO's data.
     #[pin]
     pub(crate) data: Mutex<KBox<ServoData>>,
@@ -267,7 +276,9 @@ pub(crate) struct Shared {
     /// Servo cycle at which the effort sequence was (re)loaded / power requested.
     pub(crate) effort_loaded_cycle: Atomic<u64>,
     pub(crate) power_on_cycle: Atomic<u64>,
-    /// Answer frames: sequence counter, frames queued, cycles skipped (lock busy).
+    /// Answer frames: sequence counter, frames queued, cycles whose answers
+    /// were skipped (the VPr latch was being written: `answers_skipped_lock_busy`
+    /// in /dev/hap_stats), frames a full rtf_out refused.
     pub(crate) answer_seq: Atomic<u32>,
     pub(crate) answers_sent: Atomic<u64>,
     pub(crate) answers_skipped: Atomic<u64>,
@@ -281,9 +292,17 @@ pub(crate) struct Shared {
 impl Shared {
     pub(crate) fn new(period_us: u32) -> Result<impl PinInit<Self, Error>> {
         let proto = KBox::new(ProtoIn::new(), GFP_KERNEL)?;
+        // The latch starts as the protocol does (no session, its initial VPr).
+        let vpr_latch = SeqWords::new(Words::new());
+        {
+            let mut session = u64::from(proto.session());
+            let mut vpr = *proto.vpr();
+            let w = vpr_latch.write();
+            vpr_words(&mut session, &mut vpr, |i, v| w.set(i, *v));
+        }
         let data = ServoData::new_boxed(period_us)?;
         let mut own_stats = new_stats(period_us)?;
-        let stats = SeqWords::new(atomic_words(STATS_WORDS)?);
+        let stats = SeqWords::new(storage(STATS_WORDS)?);
         {
             let w = stats.write();
             own_stats.visit_words(crate::hap_core::stats::WordSet::All, |i, v| w.set(i, *v));
@@ -296,7 +315,7 @@ impl Shared {
         let effort_scratch = EffortScratch::new_boxed()?;
         Ok(try_pin_init!(Self {
             period_us,
-            epoch: Instant::now(),
+            epoch: Ktime::now(),
             cycle_start <- Completion::new(),
             check_due <- Completion::new(),
             rtf_in_ready <- Completion::new(),
@@ -306,6 +325,7 @@ impl Shared {
             rtf_in_counters: RtfInCounters::new(),
             proto <- new_mutex!(proto),
             proto_pub: SeqWords::new(Words::new()),
+            vpr_latch,
             data <- new_mutex!(data),
             config <- RwSem::new(ServoConfig::default(), c_str!("hap_config"), static_lock_class!()),
             clock_stats <- new_mutex!(Some(own_stats)),
@@ -341,14 +361,14 @@ impl Shared {
         }? Error))
     }
 
-    /// Nanoseconds since `epoch` of an instant.
-    pub(crate) fn ns_of(&self, t: Instant<Monotonic>) -> i64 {
-        (t - self.epoch).as_nanos()
+    /// Nanoseconds since `epoch` of a clock reading.
+    pub(crate) fn ns_of(&self, t: Ktime) -> i64 {
+        t.ns_since(self.epoch)
     }
 
     /// Nanoseconds since `epoch`, now.
     pub(crate) fn now_ns(&self) -> i64 {
-        self.ns_of(Instant::now())
+        self.ns_of(Ktime::now())
     }
 
     pub(crate) fn period_ns(&self) -> i64 {
@@ -392,6 +412,40 @@ impl Shared {
         Ok(())
     }
 
+    /// Publish the protocol's session and VPr into the VPr latch. Taking
+    /// the `mtx_proto` guard serialises the latch's writers (PROTO_IN after
+    /// each frame, the fail-safe and rmmod after closing the protocol).
+    pub(crate) fn publish_vpr(&self, proto: &MutexGuard<'_, KBox<ProtoIn>>) {
+        let mut session = u64::from(proto.session());
+        let mut vpr = *proto.vpr();
+        let w = self.vpr_latch.write();
+        vpr_words(&mut session, &mut vpr, |i, v| w.set(i, *v));
+    }
+
+    /// Close the protocol (the fail-safe, rmmod) and publish the closed
+    /// session and VPr.
+    pub(crate) fn close_protocol(&self) {
+        let mut proto = self.proto.lock();
+        proto.close();
+        self.publish_vpr(&proto);
+    }
+
+    /// SERVO: the session and the VPr last published, without any lock;
+    /// `None` if every attempt overlapped a publication (a PROTO_IN
+    /// preempted inside its few stores: SERVO extrapolates).
+    pub(crate) fn latest_vpr(&self) -> Option<(u16, VpReceived)> {
+        let mut words = [0u64; VPR_LATCH_WORDS];
+        self.vpr_latch.read(&mut words, VPR_READ_ATTEMPTS)?;
+        let mut session = 0u64;
+        let mut vpr = VpReceived::default();
+        vpr_words(&mut session, &mut vpr, |i, v| {
+            if let Some(w) = words.get(i) {
+                *v = *w;
+            }
+        });
+        Some((u16::try_from(session).unwrap_or(0), vpr))
+    }
+
     /// PROTO_IN's published counters and session.
     pub(crate) fn proto_counters(&self) -> (ProtoCounters, u16) {
         let mut words = [0u64; PROTO_WORDS];
@@ -406,6 +460,10 @@ impl Shared {
         (c, u16::try_from(session).unwrap_or(0))
     }
 }
+
+/// SERVO's read attempts of the VPr latch (a publication is 18 stores;
+/// on one CPU a PROTO_IN preempted inside one does not finish meanwhile).
+const VPR_READ_ATTEMPTS: usize = 4;
 
 /// Read attempts before a statistics read gives up (each copies ~3 000
 /// words; CLOCK writes a few dozen once per period).

@@ -86,12 +86,10 @@ fn encode_sequence(keys: &[EffortKeyframe], out: &mut [u8]) -> usize {
     let mut at = 16usize;
     for k in keys {
         put(out, at, &k.t_ms.to_le_bytes());
-        for (j, v) in Iterator::chain(k.force_mn.iter(), k.torque_mnm.iter()).enumerate() {
-            put(
-                out,
-                at.saturating_add(4).saturating_add(j.saturating_mul(4)),
-                &v.to_le_bytes(),
-            );
+        let mut v_at = at.saturating_add(4);
+        for v in Iterator::chain(k.force_mn.iter(), k.torque_mnm.iter()) {
+            put(out, v_at, &v.to_le_bytes());
+            v_at = v_at.saturating_add(4);
         }
         put(out, at.saturating_add(28), &[k.flags]);
         at = at.saturating_add(KEY_BYTES);
@@ -282,7 +280,7 @@ impl HapDevice for Effort {
             pr_info!(
                 "effort sequence loaded: {} keyframes at cycle {}\n",
                 keyframes,
-                sh.effort_loaded_cycle.load(kernel::sync::atomic::Acquire)
+                sh.effort_loaded_cycle.load(Acquire)
             );
         }
         drop(guard);
@@ -354,5 +352,7 @@ pub(crate) fn log_fail_safe_step(sh: &Shared, step: u8) {
     };
     let mut buf = [0u8; LogRecord::SIZE];
     rec.encode(&mut buf);
-    let _ = sh.simlog.push(&buf);
+    // SERVO may be mid-push (CLOCK preempted it): the record is refused and
+    // counted rather than waited for, since the next step cuts the motors.
+    let _ = sh.simlog.try_push_exclusive(&buf);
 }

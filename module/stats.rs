@@ -56,12 +56,13 @@ impl<const N: usize> TextBuf<N> {
 
 impl<const N: usize> Write for TextBuf<N> {
     fn write_str(&mut self, s: &str) -> core::fmt::Result {
-        let end = self.len.saturating_add(s.len()).min(N);
-        let n = end.saturating_sub(self.len);
-        if let (Some(dst), Some(src)) = (self.buf.get_mut(self.len..end), s.as_bytes().get(..n)) {
-            dst.copy_from_slice(src);
-            self.len = end;
+        let free = self.buf.get_mut(self.len..).unwrap_or(&mut []);
+        let mut n = 0usize;
+        for (d, b) in free.iter_mut().zip(s.as_bytes()) {
+            *d = *b;
+            n = n.saturating_add(1);
         }
+        self.len = self.len.saturating_add(n).min(N);
         if n < s.len() {
             Err(core::fmt::Error)
         } else {
@@ -87,8 +88,7 @@ fn cycle_or_never(v: u64) -> i64 {
 
 /// A copy of CLOCK's published statistics, in its own allocation.
 fn copy_stats(sh: &Shared) -> Result<KBox<HapStats>> {
-    let mut words = KVVec::<u64>::with_capacity(STATS_WORDS, GFP_KERNEL)?;
-    words.resize(STATS_WORDS, 0, GFP_KERNEL)?;
+    let mut words = KVVec::<u64>::zeroed(STATS_WORDS, GFP_KERNEL)?;
     let mut st = new_stats(sh.period_us)?;
     sh.read_stats(&mut words, &mut st)?;
     Ok(st)
@@ -213,8 +213,7 @@ fn render(sh: &Shared, st: &mut HapStats, out: &mut [u8]) -> usize {
 /// The text a read-only device shows for one open: `render` writes at most
 /// `max` bytes and returns how many.
 fn snapshot(max: usize, render: impl FnOnce(&mut [u8]) -> usize) -> Result<KVVec<u8>> {
-    let mut text = KVVec::with_capacity(max, GFP_KERNEL)?;
-    text.resize(max, 0, GFP_KERNEL)?;
+    let mut text = KVVec::<u8>::zeroed(max, GFP_KERNEL)?;
     let n = render(&mut text);
     text.truncate(n);
     Ok(text)
@@ -230,7 +229,7 @@ impl HapDevice for StatsDevice {
     }
 
     fn read(f: &OpenFile<Self>, pos: &mut i64, iov: &mut IovIterDest<'_>) -> Result<usize> {
-        iov.simple_read_from_buffer(pos, &f.dev.text)
+        crate::uaccess::read_at(iov, pos, &f.dev.text)
     }
 }
 
@@ -254,6 +253,6 @@ impl HapDevice for HistDevice {
     }
 
     fn read(f: &OpenFile<Self>, pos: &mut i64, iov: &mut IovIterDest<'_>) -> Result<usize> {
-        iov.simple_read_from_buffer(pos, &f.dev.text)
+        crate::uaccess::read_at(iov, pos, &f.dev.text)
     }
 }

@@ -4,7 +4,8 @@
 # Prints "N passed, N failed" per part and a total at the end.
 #   scripts/test.sh [--host-only | --qemu-only] [--no-debug-kernel] [--no-e2e]
 #                   [--no-debian] [--self-built-kernel]
-# The QEMU suite and the e2e link boot Debian's stock 7.3 rt-amd64 kernel with
+# The QEMU suite, ViSP's Virtuose test program, the e2e link and the
+# authentication campaign boot Debian's stock 7.3 rt-amd64 kernel with
 # the module built against its headers (trixie chroot, scripts/debian-kernel.sh);
 # --self-built-kernel boots the project's test kernel instead. The debug-kernel
 # suite (lockdep, atomic-sleep) always runs on the self-built debug kernel,
@@ -87,6 +88,12 @@ if [ "$qemu" = 1 ]; then
     bash tests/run-qemu-suite.sh $kflag | tee "$out"
     line=$(grep -E '^qemu: [0-9]+ passed' "$out" | tail -1)
     add "qemu suite ($kernel kernel)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+    rm -f "$out"
+    log "ViSP's vpVirtuose and testVirtuoseHapticBox, unchanged, against the module in QEMU"
+    out=$(mktemp); t_visp=$(date +%s)
+    bash tests/visp/run.sh --target qemu $([ "$kernel" = self ] && echo --self-built-kernel) 2>&1 | tee "$out"
+    line=$(grep -E '^visp-qemu: [0-9]+ passed' "$out" | tail -1)
+    add "ViSP on VirtuoseAPI.h (module in QEMU, $kernel kernel, $(( $(date +%s) - t_visp )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
     rm -f "$out"
     if [ "$e2e" = 1 ]; then
       out=$(mktemp)

@@ -81,9 +81,9 @@ echo "HAP-B-DONE"
 
 # --- (c) rmmod during full traffic --------------------------------------------
 # The client streams at 1 kHz, more than the slow debug guest takes: PROTO_IN
-# (SCHED_FIFO 1) then runs back to back and holds mtx_proto most of the time,
-# so a /dev/hap_stats open (which takes mtx_proto) can wait for long. Poll
-# the bridge's counters file instead (rewritten every second, no module lock).
+# (SCHED_FIFO 1) then runs back to back, so a SCHED_OTHER shell reading
+# /dev/hap_stats gets little CPU. Poll the bridge's counters file instead
+# (rewritten every second, no module lock).
 pstat() { sed -n "s/^$1: *//p" /run/proto_interface.stats 2>/dev/null | head -1; }
 pge() { [ "$(pstat "$1")" -ge "$2" ] 2>/dev/null; }
 b2=$(pstat sessions_opened)

@@ -5,8 +5,8 @@
 . /tests/lib.sh
 echo "# mode: $HAP_MODE"
 
-check_not "insmod refuses period_us=100 (out of 250..=10000)" insmod $HAP_KO period_us=100
-check "dmesg explains the refused period" dmesg_has 'period_us=100 out of range'
+check_not "insmod refuses period_us=50 (out of 100..=10000)" insmod $HAP_KO period_us=50
+check "dmesg explains the refused period" dmesg_has 'period_us=50 out of range'
 check "insmod with period_us=$HAP_PERIOD_US" insmod $HAP_KO period_us=$HAP_PERIOD_US
 check "dmesg has the load line" dmesg_has "hapticctrl: loaded, period $HAP_PERIOD_US us"
 check "dmesg shows hap-core's CRC-32C check value computed in the kernel" dmesg_has 'crc32c check 0xe3069283'

@@ -236,9 +236,10 @@ pub struct ControlOutput {
     /// Scale applied to the coupling's joint torques to fit the motor
     /// limits (1: none), [0, 1].
     pub torque_scale: Fx,
-    /// The spring–damper wrench after the envelope and the saturation,
-    /// before the passivity controller and the torque scaling: the force
-    /// the target port sees right after the client's step.
+    /// The spring–damper wrench after the saturation, at last cycle's
+    /// envelope and slip, before the passivity controller and the torque
+    /// scaling: the force the target port sees right after the client's
+    /// step, before the envelope moves (what the observer integrates).
     pub spring_wrench: Wrench,
 }
 
@@ -378,7 +379,7 @@ fn spring_energy(g: &Gains, d: Vec3, e: Vec3) -> Fx {
 
 /// Per-component bounds of the coupling errors: position m, speed m/s,
 /// angular speed rad/s (far beyond the arm's reach and speeds).
-const D_CLAMP: Fx = Fx::from_int(4);
+pub const D_CLAMP: Fx = Fx::from_int(4);
 const V_CLAMP: Fx = Fx::from_int(100);
 const W_CLAMP: Fx = Fx::from_int(1000);
 
@@ -577,39 +578,26 @@ pub fn cartesian_control(
             ctrl.slip_rot = e.sub(e_eff);
         }
         ctrl.prev_k = g;
-        if ctrl.coupled && env > env_prev {
-            // A rising envelope stores ½(g − g₀)·K|d|² more in the spring:
-            // paid by the observer when it holds it, else the anchor slips
-            // so that the force stays continuous (g₀/g of the stretch).
-            let v = spring_energy(&g, d_eff, e_eff);
-            let cost = v.mul_sat(env.sub_sat(env_prev));
-            if ctrl.po_energy.sub_sat(cost) >= v.mul_sat(env) {
-                ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
-            } else {
-                let k = ratio_le1(env_prev, env);
-                d_eff = d_eff.scale(k);
-                e_eff = e_eff.scale(k);
-                ctrl.slip = d.sub(d_eff);
-                ctrl.slip_rot = e.sub(e_eff);
-            }
-        }
-        spring = Some((d, e, d_eff, e_eff));
         let dv = clamp_vec(t_v.sub(v_h), V_CLAMP);
         let dw = clamp_vec(t_w.sub(w_h), W_CLAMP);
-        let f = d_eff.scale(g.k_lin).add(dv.scale(g.b_lin));
-        let tq = e_eff.scale(g.k_rot).add(dw.scale(g.b_rot));
-        let (mut w, sat) = Wrench {
-            force: f,
-            torque: tq,
-        }
-        .saturate(MAX_FORCE, MAX_TORQUE);
-        if sat {
-            alarms |= alarm::TORQUE_SATURATED;
-            sat_f = ratio_le1(w.force.norm(), f.norm());
-            sat_t = ratio_le1(w.torque.norm(), tq.norm());
-        }
-        w = w.scale(env);
-        spring_wrench = w;
+        // The saturated spring–damper wrench of a stretch (and its
+        // unsaturated force and torque, for the slip).
+        let spring_at = |d_eff: Vec3, e_eff: Vec3| {
+            let f = d_eff.scale(g.k_lin).add(dv.scale(g.b_lin));
+            let tq = e_eff.scale(g.k_rot).add(dw.scale(g.b_rot));
+            let (w, sat) = Wrench {
+                force: f,
+                torque: tq,
+            }
+            .saturate(MAX_FORCE, MAX_TORQUE);
+            (w, sat, f, tq)
+        };
+        let mut sw = spring_at(d_eff, e_eff);
+        // The spring right after the client's step, before the envelope
+        // moves: the end of the target port's trapezoid. The step is taken
+        // on the spring of the last period (its envelope, its slip); the
+        // envelope's change is paid (or slipped, or dissipated) apart.
+        let w_step = sw.0.scale(env_prev);
         if !ctrl.coupled {
             // Start of coupling: the observer starts with the spring's energy.
             ctrl.po_energy = spring_energy(&g, d_eff, e_eff);
@@ -624,11 +612,17 @@ pub fn cartesian_control(
             // displacement: the exact work at the motors. Target port: the
             // client's pose is a sampled signal, so the spring's change on
             // its step is the trapezoid of the wrench before and after it.
-            let dp_t = t_pos.sub(ctrl.prev_target.position);
-            let dth_t = t_rot.error_vector(&ctrl.prev_target.orientation);
+            // The step as the spring sees it: the change of the (bounded)
+            // error it made, so a target beyond `D_CLAMP` moves no energy
+            // the spring does not store or give back.
+            let dp_t = d.sub(clamp_vec(ctrl.prev_target.position.sub(p_h), D_CLAMP));
+            let dth_t = e.sub(clamp_vec(
+                ctrl.prev_target.orientation.error_vector(&q_h),
+                Fx::TWO,
+            ));
             let pw = ctrl.prev_wrench;
-            let avg_f = pw.force.add(w.force).scale(Fx::HALF);
-            let avg_t = pw.torque.add(w.torque).scale(Fx::HALF);
+            let avg_f = pw.force.add(w_step.force).scale(Fx::HALF);
+            let avg_t = pw.torque.add(w_step.torque).scale(Fx::HALF);
             let mut de = avg_f.dot(dp_t).add_sat(avg_t.dot(dth_t));
             for ((q, q0), t) in
                 ps.q.iter()
@@ -645,6 +639,33 @@ pub fn cartesian_control(
             }
             ctrl.po_energy = ctrl.po_energy.add_sat(de);
         }
+        if ctrl.coupled && env > env_prev {
+            // A rising envelope stores ½(g − g₀)·K|d|² more in the spring:
+            // paid by the observer when it holds it (with this period's
+            // energy already in, so what it holds is now), else the anchor
+            // slips so that the force stays continuous (g₀/g of the stretch).
+            let v = spring_energy(&g, d_eff, e_eff);
+            let cost = v.mul_sat(env.sub_sat(env_prev));
+            if ctrl.po_energy.sub_sat(cost) >= v.mul_sat(env) {
+                ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
+            } else {
+                let k = ratio_le1(env_prev, env);
+                d_eff = d_eff.scale(k);
+                e_eff = e_eff.scale(k);
+                ctrl.slip = d.sub(d_eff);
+                ctrl.slip_rot = e.sub(e_eff);
+                sw = spring_at(d_eff, e_eff);
+            }
+        }
+        spring = Some((d, e, d_eff, e_eff));
+        let (mut w, sat, f, tq) = sw;
+        if sat {
+            alarms |= alarm::TORQUE_SATURATED;
+            sat_f = ratio_le1(w.force.norm(), f.norm());
+            sat_t = ratio_le1(w.torque.norm(), tq.norm());
+        }
+        w = w.scale(env);
+        spring_wrench = w_step;
         // Passivity controller: dissipate the energy the coupling created.
         if ctrl.passivity_control && ctrl.po_energy < PO_TOLERANCE {
             alarms |= alarm::PASSIVITY;

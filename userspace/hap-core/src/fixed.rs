@@ -90,9 +90,13 @@ impl Fx {
         Fx((n as i64) << 32)
     }
 
-    /// `num / den` as a fixed-point number, for constants (den != 0, |num| < 2^47).
+    /// `num / den` as a fixed-point number, for constants (|num| < 2^47;
+    /// `den == 0` gives 0, as [`Fx::ratio`]).
     pub const fn from_ratio(num: i64, den: i64) -> Fx {
-        Fx(((num << 16) / den) << 16)
+        match (num << 16).checked_div(den) {
+            Some(q) => Fx(q << 16),
+            None => Fx::ZERO,
+        }
     }
 
     /// `num / den` with full precision and saturation; `den == 0` gives 0.

@@ -206,7 +206,9 @@ impl Servo {
         self.log.status |= est.status;
         self.log.link_gain = gain;
         self.log.vpr_age_cycles = if est.vpr.valid {
-            let period_us = u64::from(self.period_ns / 1000).max(1);
+            // A non-zero divisor by its type: no division-by-zero path.
+            let period_us = core::num::NonZeroU64::new(u64::from(self.period_ns / 1000))
+                .unwrap_or(core::num::NonZeroU64::MIN);
             u32::try_from(est.age_us / period_us).unwrap_or(u32::MAX)
         } else {
             LogRecord::NO_VPR

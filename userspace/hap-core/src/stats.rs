@@ -112,12 +112,15 @@ impl Histogram {
             return 0;
         }
         let prod = self.count.saturating_mul(num.min(den));
-        let rank = prod.div_ceil(den).max(1);
+        // ⌈prod / den⌉ (`div_ceil` adds with an overflow check).
+        let rank = (prod / den)
+            .saturating_add(u64::from(prod % den != 0))
+            .max(1);
         let mut cum: u64 = 0;
-        for (i, &b) in self.buckets.iter().enumerate() {
+        for (i, &b) in (0..HIST_BUCKETS as u32).zip(self.buckets.iter()) {
             cum = cum.saturating_add(b);
             if cum >= rank {
-                return i as u32;
+                return i;
             }
         }
         HIST_BUCKETS as u32

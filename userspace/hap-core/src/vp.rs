@@ -2,7 +2,7 @@
 //! (the spec's shared memories): `VpReceived` (VPr, the client's virtual
 //! object as PROTO_IN decoded it) and `VpSent` (VP, what SERVO answers).
 
-use super::fixed::{Pose, Twist, Wrench};
+use super::fixed::{Fx, Pose, Twist, Wrench};
 
 /// VPr: the client's virtual object, as last received.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -19,6 +19,56 @@ pub struct VpReceived {
     pub received_cycle: u64,
     /// False until the first valid VPr frame of the session.
     pub valid: bool,
+}
+
+/// Words of a published [`VpReceived`] ([`VpReceived::visit_words`]).
+pub const VPR_WORDS: usize = 17;
+
+impl VpReceived {
+    /// Visit the words of a publication of the VPr (`VPR_WORDS` of them,
+    /// word `i` handed to `f` as `(i, &mut value)`): reading `*value`
+    /// encodes, writing it decodes. One walk for both directions, so that
+    /// they cannot disagree; `Fx` values cross as their bits. The kernel's
+    /// VPr latch (PROTO_IN → SERVO) is these words under a seqcount.
+    pub fn visit_words(&mut self, f: impl FnMut(usize, &mut u64)) {
+        struct Walk<F> {
+            i: usize,
+            f: F,
+        }
+        impl<F: FnMut(usize, &mut u64)> Walk<F> {
+            fn word(&mut self, w: &mut u64) {
+                (self.f)(self.i, w);
+                self.i = self.i.saturating_add(1);
+            }
+            fn fx(&mut self, x: &mut Fx) {
+                let mut w = x.0 as u64;
+                self.word(&mut w);
+                x.0 = w as i64;
+            }
+            fn u32(&mut self, x: &mut u32) {
+                let mut w = u64::from(*x);
+                self.word(&mut w);
+                *x = u32::try_from(w).unwrap_or(0);
+            }
+        }
+        let mut k = Walk { i: 0, f };
+        let (p, o) = (&mut self.pose.position, &mut self.pose.orientation);
+        for x in [
+            &mut p.x, &mut p.y, &mut p.z, &mut o.x, &mut o.y, &mut o.z, &mut o.w,
+        ] {
+            k.fx(x);
+        }
+        let (l, a) = (&mut self.twist.linear, &mut self.twist.angular);
+        for x in [&mut l.x, &mut l.y, &mut l.z, &mut a.x, &mut a.y, &mut a.z] {
+            k.fx(x);
+        }
+        k.u32(&mut self.seq);
+        k.u32(&mut self.client_time_us);
+        k.word(&mut self.received_cycle);
+        let mut valid = u64::from(self.valid);
+        k.word(&mut valid);
+        self.valid = valid != 0;
+    }
 }
 
 /// Status bits of the arm, sent in every answer (VirtuoseAPI `virtGetPowerOn`,
@@ -79,4 +129,74 @@ pub struct VpSent {
     pub cycle: u64,
     /// Sequence number of the last VPr used.
     pub vpr_seq: u32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    use super::super::fixed::{Quat, Vec3};
+
+    fn words_of(v: &VpReceived) -> [u64; VPR_WORDS] {
+        let mut out = [0u64; VPR_WORDS];
+        let mut v = *v;
+        let mut seen = 0;
+        v.visit_words(|i, w| {
+            assert_eq!(i, seen, "words visited in order");
+            out[i] = *w;
+            seen += 1;
+        });
+        assert_eq!(seen, VPR_WORDS);
+        out
+    }
+
+    fn from_words(words: &[u64; VPR_WORDS]) -> VpReceived {
+        let mut v = VpReceived::default();
+        v.visit_words(|i, w| *w = words[i]);
+        v
+    }
+
+    #[test]
+    fn words_round_trip_every_field() {
+        // Every field distinct, extremes included: a field dropped, swapped
+        // or truncated on the way changes the decoded value.
+        let v3 = |a: i64, b: i64, c: i64| Vec3 {
+            x: Fx(a),
+            y: Fx(b),
+            z: Fx(c),
+        };
+        let samples = [
+            VpReceived::default(),
+            VpReceived {
+                pose: Pose {
+                    position: v3(1, -2, i64::MAX),
+                    orientation: Quat {
+                        x: Fx(i64::MIN),
+                        y: Fx(5),
+                        z: Fx(-6),
+                        w: Fx::ONE,
+                    },
+                },
+                twist: Twist {
+                    linear: v3(7, 8, -9),
+                    angular: v3(10, -11, 12),
+                },
+                seq: u32::MAX,
+                client_time_us: 0x8000_0001,
+                received_cycle: u64::MAX - 1,
+                valid: true,
+            },
+        ];
+        for v in samples {
+            assert_eq!(from_words(&words_of(&v)), v);
+        }
+        // Each word reaches its own field: flipping one word changes the value.
+        let base = samples[1];
+        let w = words_of(&base);
+        for i in 0..VPR_WORDS {
+            let mut w2 = w;
+            w2[i] ^= 1;
+            assert_ne!(from_words(&w2), base, "word {i} is not decoded");
+        }
+    }
 }

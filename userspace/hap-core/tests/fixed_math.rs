@@ -126,6 +126,9 @@ fn small_and_special_values() {
     assert_eq!(Fx::MIN / Fx(-1), Fx::MAX);
     assert_eq!(Fx::from_milli(1500), Fx::from_ratio(3, 2));
     assert_eq!(Fx::from_ratio(3, 2).to_milli(), 1500);
+    // No division panic: a zero or overflowing divisor gives 0, as `ratio`.
+    assert_eq!(Fx::from_ratio(1, 0), Fx::ZERO);
+    assert_eq!(Fx::from_ratio(-(1 << 47), -1), Fx::ZERO);
     assert!(
         (Fx::from_f64(7.3).wrap_angle().to_f64() - (7.3 - 2.0 * std::f64::consts::PI)).abs() < 1e-8
     );

@@ -441,3 +441,47 @@ fn stiffer_gains_on_a_mode_switch_keep_the_force_and_inject_nothing() {
     }
     assert!(min_e > -1e-6, "{min_e}");
 }
+
+/// One campaign run whose observer must stay above the passivity
+/// controller's threshold (and its ledger ≥ rounding), without PASSIVITY.
+fn observer_holds(seed: u64, period_us: u32, cycles: u64) {
+    let figs = campaign::run(seed, period_us, cycles);
+    figs.print(&format!("seed {seed}, {period_us} µs"));
+    assert!(figs.coupled_cycles > 1000);
+    assert!(figs.worst_ledger > -1e-6, "{}", figs.worst_ledger);
+    assert!(
+        figs.worst_observer > hap_core::control::PO_TOLERANCE.to_f64(),
+        "{}",
+        figs.worst_observer
+    );
+    assert_eq!(figs.passivity_cycles, 0);
+}
+
+/// Seed 1003 at 10 ms: the coupling starts 3.5 cm stretched with a free
+/// client mass on the target, and the envelope rises in 0.2 steps. The
+/// observer used to decide whether it could pay a rise before adding the
+/// period's port energy (here −5.4e-4 J flowing out to the client mass), so
+/// it paid a rise it could not afford and later fell to −7.3e-6 J while the
+/// motor-side ledger stayed at +5.9e-3 J.
+#[test]
+fn envelope_rise_is_paid_from_the_observer_after_the_period_energy() {
+    observer_holds(1003, 10_000, 6_000);
+}
+
+/// Seed 1020 at 10 ms: the client mass runs more than `D_CLAMP` (4 m) away
+/// from the handle, where the spring's error is bounded and stores nothing
+/// more. The observer integrated the target's raw displacement and fell to
+/// −11.8 J; it now integrates the change of the error the spring sees.
+#[test]
+fn target_beyond_the_error_bound_moves_no_observer_energy() {
+    observer_holds(1020, 10_000, 14_500);
+}
+
+/// Seed 1091 at 10 ms: rotation steps of the target on a rotational error
+/// of about 1 rad. The target port integrated the step's own rotation
+/// vector, not the change of the error vector the spring acts on, and the
+/// observer fell to −4.8e-3 J.
+#[test]
+fn target_rotation_step_is_taken_on_the_spring_error_vector() {
+    observer_holds(1091, 10_000, 21_000);
+}

@@ -5,7 +5,8 @@
 //! bridge does), acknowledges configuration requests, and answers every
 //! VprStream with an Answer (or, with `answer_every_period`, answers every
 //! period while the session is open, like the controller): the handle
-//! follows a scripted sinusoid, and the coupling wrench is a spring-damper
+//! follows a scripted sinusoid of the fake's own time (one period per
+//! answer, whatever the host's clock), and the coupling wrench is a spring-damper
 //! between the handle and the streamed virtual object (only while a virtual
 //! object is attached and power is on).
 
@@ -51,6 +52,9 @@ pub struct FakePeerConfig {
     pub extra_status: u32,
     /// `hap_core::vp::alarm` bits reported in every answer.
     pub alarms: u32,
+    /// Neither apply nor acknowledge power requests (a controller that
+    /// does not answer a request: the client's retries time out).
+    pub ignore_power_requests: bool,
 }
 
 impl Default for FakePeerConfig {
@@ -70,6 +74,7 @@ impl Default for FakePeerConfig {
             answer_every_period: false,
             extra_status: 0,
             alarms: 0,
+            ignore_power_requests: false,
         }
     }
 }
@@ -199,7 +204,10 @@ fn run(
                       vpr: &Option<(Pose, Twist, u32)>,
                       powered: bool,
                       attached: bool| {
-        let t = t0.elapsed().as_secs_f64();
+        // The handle moves on the controller's clock: one period per
+        // answer (a client that is late sees the handle where the
+        // controller's time puts it, not where the host's clock would).
+        let t = f64::from(cycle) * f64::from(cfg.period_us) * 1e-6;
         let mut hp = [0.0; 3];
         let mut hv = [0.0; 3];
         for i in 0..3 {
@@ -267,8 +275,19 @@ fn run(
         }
     };
 
+    // Answering every period with a session open, like the controller's
+    // cycle: the socket is non-blocking, the frames that arrived are
+    // handled, then the thread sleeps until the next answer (a sleep is
+    // precise; a socket's receive timeout is rounded up to the kernel's
+    // tick, which would answer every few ms instead).
+    let mut nonblocking = false;
     while !stop.load(Ordering::SeqCst) {
-        if cfg.answer_every_period {
+        let periodic = cfg.answer_every_period && client.is_some();
+        if periodic != nonblocking {
+            let _ = sock.set_nonblocking(periodic);
+            nonblocking = periodic;
+        }
+        if periodic {
             if let Some(c) = client {
                 let now = Instant::now();
                 if now >= next_answer {
@@ -278,16 +297,14 @@ fn run(
                         next_answer = now + period;
                     }
                 }
-                let wait = next_answer
-                    .saturating_duration_since(Instant::now())
-                    .max(Duration::from_micros(50));
-                let _ = sock.set_read_timeout(Some(wait));
-            } else {
-                let _ = sock.set_read_timeout(Some(Duration::from_millis(50)));
             }
         }
         let (n, src) = match sock.recv_from(&mut buf) {
             Ok(x) => x,
+            Err(e) if periodic && e.kind() == std::io::ErrorKind::WouldBlock => {
+                std::thread::sleep(next_answer.saturating_duration_since(Instant::now()));
+                continue;
+            }
             Err(_) => continue,
         };
         let Ok((h, frame)) = decode(&buf[..n]) else {
@@ -357,6 +374,7 @@ fn run(
                 attached = false;
                 last_vpr = None;
             }
+            Frame::PowerRequest(_) if cfg.ignore_power_requests => {}
             Frame::PowerRequest(on) => {
                 powered = on;
                 ack(&mut seq, session, &mut out);

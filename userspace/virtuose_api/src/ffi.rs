@@ -7,16 +7,18 @@
 //! thread. Float arrays: position `float[7]` (x, y, z, qx, qy, qz, qw),
 //! speed and force `float[6]`.
 //!
-//! A context may be used from two threads at once (the application and the
-//! periodic callback loop): its session, its VirtuoseAPI state and its loop
-//! are behind separate mutexes, never held together.
+//! A context may be used from several threads at once (the application,
+//! the periodic callback loop, the trajectory recorder): its session (a
+//! read-write lock: requests, readings and set-points share it), its
+//! VirtuoseAPI state and its loop are behind separate locks, never held
+//! together.
 
 use std::cell::RefCell;
 use std::ffi::{c_char, c_float, c_int, c_uint, c_ushort, c_void, CStr, CString};
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::thread::{JoinHandle, ThreadId};
 use std::time::{Duration, Instant};
 
@@ -225,7 +227,11 @@ impl Worker {
 
 /// Opaque handle given to C (`VirtContext`).
 pub struct VirtContextS {
-    vc: Mutex<VirtContext>,
+    /// Requests (an acknowledged round trip) and readings take it shared,
+    /// so one thread's request does not stall another's readings and
+    /// set-points; only closing, the factors and the time-out value take
+    /// it exclusive.
+    vc: RwLock<VirtContext>,
     st: Mutex<ApiState>,
     periodic_loop: Mutex<Option<Worker>>,
     recorder: Mutex<Option<Worker>>,
@@ -241,8 +247,18 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl VirtContextS {
-    fn session(&self) -> MutexGuard<'_, VirtContext> {
-        lock(&self.vc)
+    fn session(&self) -> RwLockReadGuard<'_, VirtContext> {
+        match self.vc.read() {
+            Ok(g) => g,
+            Err(p) => p.into_inner(),
+        }
+    }
+
+    fn session_mut(&self) -> RwLockWriteGuard<'_, VirtContext> {
+        match self.vc.write() {
+            Ok(g) => g,
+            Err(p) => p.into_inner(),
+        }
     }
 
     fn state(&self) -> MutexGuard<'_, ApiState> {
@@ -261,8 +277,10 @@ impl VirtContextS {
             };
             match r {
                 Err(VirtError::NoData) if Instant::now() < deadline => {
-                    let vc = self.session();
-                    vc.wait_answer(Duration::from_millis(20));
+                    // Wait without holding the session (the other thread
+                    // of the context keeps using it).
+                    let w = self.session().answer_waiter();
+                    w.wait_newer(w.current().0, Duration::from_millis(20));
                 }
                 Err(VirtError::NoData) => {
                     return Err(ApiError::new(
@@ -293,10 +311,11 @@ impl VirtContextS {
         Ok(q)
     }
 
-    /// The coupling stiffnesses the controller uses (arm units).
+    /// The coupling stiffnesses the controller uses (arm units): its gains
+    /// for the servo period (`Gains::for_period`), the translational one
+    /// capped at `m / ts²` for a virtual object of mass `m` (VIRTMECH).
     fn gains(&self, vc: &VirtContext, vo_mass: Option<f32>, ts: f32) -> (f64, f64) {
-        let period_us = vc.link_stats().period_us.max(1);
-        let g = Gains::for_period(Fx::from_ratio(period_us as i64, 1_000_000));
+        let g = Self::period_gains(vc);
         let mut k_lin = g.k_lin.to_f64();
         if let Some(m) = vo_mass {
             let ts = ts as f64;
@@ -307,10 +326,35 @@ impl VirtContextS {
         (k_lin, g.k_rot.to_f64())
     }
 
+    fn period_gains(vc: &VirtContext) -> Gains {
+        let period_us = vc.link_stats().period_us.max(1);
+        Gains::for_period(Fx::from_ratio(period_us as i64, 1_000_000))
+    }
+
+    /// The translational coupling (stiffness N/m, damping N·s/m) in the
+    /// client's units (force factor, speed factor), as the controller
+    /// applies it in the current command type.
+    fn simulation_coupling(&self) -> (f64, f64) {
+        let (frames, cmd, mass, ts) = {
+            let st = self.state();
+            (st.frames, st.command, st.vo_mass, st.time_step)
+        };
+        let vc = self.session();
+        let mass = if cmd == COMMAND_TYPE_VIRTMECH {
+            mass
+        } else {
+            None
+        };
+        let (k, _) = self.gains(&vc, mass, ts);
+        let b = Self::period_gains(&vc).b_lin.to_f64();
+        let scale = frames.force_factor / frames.speed_factor;
+        (k * scale, b * scale)
+    }
+
     /// COMMAND_TYPE_IMPEDANCE: stream the coupling set-point that applies
     /// the commanded force (virtSetForce + virtAddForce) to the handle.
     fn stream_force(&self) -> R<()> {
-        let (frames, wrench, sat, mass, ts) = {
+        let (frames, wrench, sat, ts) = {
             let st = self.state();
             if st.command != COMMAND_TYPE_IMPEDANCE || !st.force_feedback {
                 return Ok(());
@@ -319,13 +363,14 @@ impl VirtContextS {
             for (a, b) in w.iter_mut().zip(st.added_force.iter()) {
                 *a += *b;
             }
-            (st.frames, w, st.saturation, st.vo_mass, st.time_step)
+            (st.frames, w, st.saturation, st.time_step)
         };
         let handle = self.read(|v| v.get_position())?;
         let twist = self.read(|v| v.get_speed()).unwrap_or([0.0; 6]);
         let w = kin::saturate(&wrench, sat.0, sat.1);
-        let mut vc = self.session();
-        let (k_lin, k_rot) = self.gains(&vc, mass, ts);
+        let vc = self.session();
+        // (The controller's mass cap is for VIRTMECH only.)
+        let (k_lin, k_rot) = self.gains(&vc, None, ts);
         let target = kin::force_setpoint(&frames, &handle, &w, k_lin, k_rot);
         vc.set_speed(&twist)?;
         vc.set_position(&target)?;
@@ -464,7 +509,7 @@ pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut c_void {
             clear_error();
             let timeout_s = vc.options().reply_timeout.as_secs_f32() * vc.options().attempts as f32;
             let b = Box::new(VirtContextS {
-                vc: Mutex::new(vc),
+                vc: RwLock::new(vc),
                 st: Mutex::new(ApiState {
                     timeout_s,
                     ..Default::default()
@@ -512,7 +557,7 @@ pub unsafe extern "C" fn virtClose(vc: *mut c_void) -> c_int {
     // SAFETY: live pointer from Box::into_raw, per the contract.
     let b = unsafe { Box::from_raw(vc as *mut VirtContextS) };
     b.stop_workers();
-    let r = b.session().close();
+    let r = b.session_mut().close();
     status_of(r.map_err(ApiError::from))
 }
 
@@ -647,7 +692,7 @@ pub unsafe extern "C" fn virtSetTimeoutValue(vc: *mut c_void, t: c_float) -> c_i
                 ));
             }
             {
-                let mut s = c.session();
+                let mut s = c.session_mut();
                 let mut o = s.options();
                 let attempts = o.attempts.max(1);
                 o.reply_timeout = Duration::from_secs_f32(t / attempts as f32);
@@ -862,7 +907,7 @@ pub unsafe extern "C" fn virtSetForceFactor(vc: *mut c_void, k: c_float) -> c_in
     // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
-            c.session().set_force_factor(k)?;
+            c.session_mut().set_force_factor(k)?;
             c.state().frames.force_factor = k as f64;
             Ok(())
         })
@@ -884,7 +929,7 @@ pub unsafe extern "C" fn virtSetSpeedFactor(vc: *mut c_void, k: c_float) -> c_in
     // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
-            c.session().set_speed_factor(k)?;
+            c.session_mut().set_speed_factor(k)?;
             c.state().frames.speed_factor = k as f64;
             Ok(())
         })
@@ -1113,19 +1158,10 @@ pub unsafe extern "C" fn virtWaitPressButton(vc: *mut c_void, n: c_int) -> c_int
                 if s & bit != 0 {
                     return Ok(());
                 }
-                // Wait on the session without holding its lock for long.
-                let got = {
-                    let deadline = Instant::now() + timeout;
-                    let mut got = false;
-                    while Instant::now() < deadline {
-                        if c.session().wait_answer(Duration::from_millis(20)) {
-                            got = true;
-                            break;
-                        }
-                    }
-                    got
-                };
-                if !got {
+                // Wait for the next answer without holding the session
+                // (the periodic loop and other threads keep using it).
+                let w = c.session().answer_waiter();
+                if w.wait_newer(w.current().0, timeout).is_none() {
                     return Err(ApiError::new(
                         VIRT_E_TIME_OUT,
                         "controller silent while waiting for the button",
@@ -1219,7 +1255,7 @@ pub unsafe extern "C" fn virtSetPosition(vc: *mut c_void, pos: *const c_float) -
                     st.time_step,
                 )
             };
-            let mut vc = c.session();
+            let vc = c.session();
             let target = if added.iter().any(|v| *v != 0.0) {
                 let (k_lin, k_rot) = c.gains(&vc, mass, ts);
                 let w = kin::saturate(&added, sat.0, sat.1);
@@ -1349,6 +1385,33 @@ pub unsafe extern "C" fn virtEnableForceFeedback(vc: *mut c_void, enable: c_int)
     }
 }
 
+/// Stiffness (N/m, client units: × force factor ÷ speed factor) of the
+/// coupling between the handle and the virtual object: the controller's
+/// translational gain for its servo period, capped at `m / ts²` in VIRTMECH
+/// with an attached object of mass `m`.
+///
+/// # Safety
+/// `vc` is NULL or live; `stiffness` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetSimulationStiffness(
+    vc: *mut c_void,
+    stiffness: *mut c_float,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(stiffness, c.simulation_coupling().0 as f32)) }
+}
+
+/// Damping (N·s/m, client units) of the coupling (see
+/// virtGetSimulationStiffness).
+///
+/// # Safety
+/// `vc` is NULL or live; `damping` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetSimulationDamping(vc: *mut c_void, damping: *mut c_float) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe { run(vc, |c| put(damping, c.simulation_coupling().1 as f32)) }
+}
+
 /// Handle pose, `float[7]`, world frame.
 ///
 /// # Safety
@@ -1462,7 +1525,8 @@ pub unsafe extern "C" fn virtGetArticularSpeed(vc: *mut c_void, speed: *mut c_fl
 
 // ---- periodic callback ----------------------------------------------------------
 
-/// Register `f(vc, arg)`, called every `*period` seconds by virtStartLoop.
+/// Register `f(vc, arg)`, called every `*period` seconds of the controller's
+/// clock by virtStartLoop (see `periodic_loop`).
 ///
 /// # Safety
 /// `vc` is NULL or live; `period` is NULL or readable; `f` stays callable
@@ -1504,18 +1568,55 @@ struct LoopArgs {
     period: Duration,
 }
 
-/// The callback loop: absolute deadlines every period; after each call, in
-/// COMMAND_TYPE_IMPEDANCE, the force command is streamed. A call (with the
-/// streaming) that ends after the next deadline is an overrun: latched in
+/// Cycles of the controller's servo between two calls of a periodic
+/// function of `period` (at least 1; 1 when the controller announced no
+/// period).
+fn cycles_per_call(period: Duration, servo_period_us: u32) -> u32 {
+    if servo_period_us == 0 {
+        return 1;
+    }
+    let servo = u128::from(servo_period_us);
+    let n = (period.as_micros() + servo / 2) / servo;
+    u32::try_from(n).unwrap_or(u32::MAX).max(1)
+}
+
+/// `a` is at or after `b` on the controller's wrapping 32-bit cycle counter.
+fn cycle_reached(a: u32, b: u32) -> bool {
+    (a.wrapping_sub(b) as i32) >= 0
+}
+
+/// The callback loop, on the controller's clock: the function is called
+/// when an answer shows that one period of servo cycles has passed since
+/// the previous call (every answer when the period is the servo period), so
+/// the application runs, and sends its set-points, at the rate the
+/// controller serves, not faster: a controller slower than its nominal
+/// period (emulation, a loaded host) is not flooded with set-points it
+/// cannot use. After each call, in COMMAND_TYPE_IMPEDANCE, the force command
+/// is streamed. A call (with the streaming) that ends when the controller
+/// has already reached the next call's cycle is an overrun: latched in
 /// `VIRT_ALARM_CALLBACK_OVERRUN`, counted, and the missed periods skipped.
+/// Without answers (link lost), the function is not called.
 fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
     // SAFETY: virtClose stops this thread before freeing the context.
     let c = unsafe { &*(a.ctx as *const VirtContextS) };
-    let mut next = Instant::now() + a.period;
+    let (waiter, servo_us) = {
+        let vc = c.session();
+        (vc.answer_waiter(), vc.link_stats().period_us)
+    };
+    let step = cycles_per_call(a.period, servo_us);
+    // Each wait is bounded so that a stop request is seen promptly.
+    let slice = Duration::from_millis(20);
+    let (mut gen, _) = waiter.current();
+    let mut due: Option<u32> = None;
     while !stop.load(Ordering::SeqCst) {
-        let now = Instant::now();
-        if next > now {
-            std::thread::sleep(next - now);
+        let Some((g, cycle)) = waiter.wait_newer(gen, slice) else {
+            continue;
+        };
+        gen = g;
+        if let Some(d) = due {
+            if !cycle_reached(cycle, d) {
+                continue;
+            }
         }
         if stop.load(Ordering::SeqCst) {
             break;
@@ -1526,15 +1627,18 @@ fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
         if let Err(e) = c.stream_force() {
             set_error(&e);
         }
-        let end = Instant::now();
-        next += a.period;
-        if end > next {
-            c.overrun_latched.store(true, Ordering::SeqCst);
-            c.overruns.fetch_add(1, Ordering::SeqCst);
-            while next <= end {
-                next += a.period;
+        let mut next = cycle.wrapping_add(step);
+        let (g_now, now) = waiter.current();
+        if let Some(now) = now {
+            if g_now != gen && cycle_reached(now, next) {
+                c.overrun_latched.store(true, Ordering::SeqCst);
+                c.overruns.fetch_add(1, Ordering::SeqCst);
+                while cycle_reached(now, next) {
+                    next = next.wrapping_add(step);
+                }
             }
         }
+        due = Some(next);
     }
 }
 
@@ -1653,9 +1757,10 @@ pub unsafe extern "C" fn virtTrajSetSamplingTimeStep(
     }
 }
 
-/// Record the handle pose every sampling step into the file of
-/// virtSetOutputFile: one line per sample, `t x y z qx qy qz qw cycle`
-/// (t in s from the start, world frame).
+/// Record the handle pose every sampling step of the controller's clock
+/// into the file of virtSetOutputFile: one line per sample,
+/// `t x y z qx qy qz qw cycle` (t in s of controller time from the first
+/// sample, world frame, the answer's servo cycle).
 ///
 /// # Safety
 /// `vc` is NULL or a live pointer from `virtOpen`.
@@ -1700,38 +1805,56 @@ pub unsafe extern "C" fn virtTrajRecordStart(vc: *mut c_void) -> c_int {
     }
 }
 
+/// The recorder, on the controller's clock like the callback loop: a sample
+/// when an answer reaches the next point of the sampling grid (every
+/// `period` of servo cycles from the first answer after the start); its
+/// time is the controller's, `(cycle - first cycle) × servo period`.
+/// Without answers, no samples.
 fn record(ctx: usize, file: std::fs::File, period: Duration, stop: Arc<AtomicBool>) {
     // SAFETY: virtClose / virtTrajRecordStop stop this thread first.
     let c = unsafe { &*(ctx as *const VirtContextS) };
     let mut out = std::io::BufWriter::new(file);
-    let t0 = Instant::now();
-    let mut next = t0;
+    let (waiter, servo_us) = {
+        let vc = c.session();
+        (vc.answer_waiter(), vc.link_stats().period_us.max(1))
+    };
+    let step = cycles_per_call(period, servo_us);
+    let (mut gen, _) = waiter.current();
+    let mut first: Option<u32> = None;
+    let mut due = 0u32;
     let mut n: u64 = 0;
     while !stop.load(Ordering::SeqCst) && n < TRAJ_MAX_SAMPLES {
+        let Some((g, _)) = waiter.wait_newer(gen, Duration::from_millis(20)) else {
+            continue;
+        };
+        gen = g;
         let sample = {
             let vc = c.session();
             vc.get_position().and_then(|p| Ok((p, vc.get_cycle()?)))
         };
-        if let Ok((p, cycle)) = sample {
-            let t = next.duration_since(t0).as_secs_f64();
-            if writeln!(
-                out,
-                "{t:.6} {} {} {} {} {} {} {} {cycle}",
-                p[0], p[1], p[2], p[3], p[4], p[5], p[6]
-            )
-            .is_err()
-            {
-                break;
-            }
-            n += 1;
+        let Ok((p, cycle)) = sample else { continue };
+        let c0 = *first.get_or_insert(cycle);
+        if n > 0 && !cycle_reached(cycle, due) {
+            continue;
         }
-        // Next point of the sampling grid (late samples skip grid points).
-        next += period;
-        let now = Instant::now();
-        while next < now {
-            next += period;
+        let t = f64::from(cycle.wrapping_sub(c0)) * f64::from(servo_us) * 1e-6;
+        if writeln!(
+            out,
+            "{t:.6} {} {} {} {} {} {} {} {cycle}",
+            p[0], p[1], p[2], p[3], p[4], p[5], p[6]
+        )
+        .is_err()
+        {
+            break;
         }
-        std::thread::sleep(next - now);
+        n += 1;
+        // Next point of the grid (a late sample skips grid points).
+        if n == 1 {
+            due = c0;
+        }
+        while cycle_reached(cycle, due) {
+            due = due.wrapping_add(step);
+        }
     }
     let _ = out.flush();
 }
@@ -1866,8 +1989,6 @@ not_implemented! {
     virtForceShiftButton(force_shift: c_int);
     virtIsInShiftPosition(shift: *mut c_int);
     virtAttachQSVO(ks: *const c_float, bs: *const c_float);
-    virtGetSimulationStiffness(stiffness: *mut c_float);
-    virtGetSimulationDamping(damping: *mut c_float);
     virtSetArticularPosition(pos: *const c_float);
     virtSetArticularSpeed(speed: *const c_float);
     virtSetArticularForce(force: *const c_float);
@@ -1957,6 +2078,20 @@ mod tests {
             assert_eq!(virtGetError(std::ptr::null_mut(), &mut e), 0);
             assert_eq!(e, VIRT_E_SYNTAX_ERROR);
         }
+    }
+
+    #[test]
+    fn calls_follow_the_servo_period() {
+        let ms = Duration::from_millis;
+        assert_eq!(cycles_per_call(ms(1), 1000), 1);
+        assert_eq!(cycles_per_call(ms(1), 4000), 1);
+        assert_eq!(cycles_per_call(ms(8), 4000), 2);
+        assert_eq!(cycles_per_call(ms(10), 1000), 10);
+        assert_eq!(cycles_per_call(Duration::from_micros(1500), 1000), 2);
+        assert_eq!(cycles_per_call(ms(5), 0), 1);
+        assert!(cycle_reached(5, 5) && cycle_reached(6, 5) && !cycle_reached(4, 5));
+        // Across the 32-bit wrap of the controller's counter.
+        assert!(cycle_reached(2, u32::MAX - 1) && !cycle_reached(u32::MAX - 1, 2));
     }
 
     #[test]

@@ -161,7 +161,8 @@ pub type Result<T> = std::result::Result<T, VirtError>;
 /// Timeouts, retries and the key.
 #[derive(Clone, Copy, Debug)]
 pub struct Options {
-    /// How long to wait for the SessionAck / Ack of one attempt.
+    /// How long to wait for the Ack of one attempt, and for the SessionAck
+    /// of the first OpenSession (each further one waits twice as long).
     pub reply_timeout: Duration,
     /// Attempts for each acknowledged request (open, configuration, power).
     pub attempts: u32,
@@ -344,8 +345,47 @@ pub struct VirtContext {
     peer: SocketAddr,
     force_factor: f32,
     speed_factor: f32,
-    speed: Twist,
+    /// The virtual object's twist, sent with the next set_position.
+    speed: Mutex<Twist>,
     closed: bool,
+}
+
+/// Waits for the controller's answers ([`VirtContext::answer_waiter`]).
+#[derive(Clone)]
+pub struct AnswerWaiter {
+    inner: Arc<Inner>,
+}
+
+impl AnswerWaiter {
+    /// The answer generation (bumped on every accepted answer) and the last
+    /// answer's servo cycle, if any answer has arrived.
+    pub fn current(&self) -> (u64, Option<u32>) {
+        let st = self.inner.lock();
+        (st.answer_gen, st.answer.map(|a| a.cycle))
+    }
+
+    /// Wait until an answer newer than generation `gen` has arrived (at once
+    /// if it already has), up to `timeout`: its generation and servo cycle,
+    /// or `None` on timeout.
+    pub fn wait_newer(&self, gen: u64, timeout: Duration) -> Option<(u64, u32)> {
+        let deadline = Instant::now() + timeout;
+        let mut st = self.inner.lock();
+        loop {
+            if st.answer_gen != gen {
+                if let Some(a) = st.answer {
+                    return Some((st.answer_gen, a.cycle));
+                }
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return None;
+            }
+            st = match self.inner.cond.wait_timeout(st, deadline - now) {
+                Ok((g, _)) => g,
+                Err(p) => p.into_inner().0,
+            };
+        }
+    }
 }
 
 /// Split `"address?key=/path"` into the address and the key file (the only
@@ -493,11 +533,15 @@ impl VirtContext {
             peer,
             force_factor: 1.0,
             speed_factor: 1.0,
-            speed: Twist::default(),
+            speed: Mutex::new(Twist::default()),
             closed: false,
         };
-        // OpenSession, retried with the same nonce until the SessionAck.
+        // OpenSession, retried until the SessionAck; each attempt waits
+        // twice as long as the one before (a controller that is slow to
+        // answer its first handshake, e.g. on a loaded or emulated machine,
+        // is not asked again and again, each retry opening a new session).
         let mut ok = false;
+        let mut wait = opts.reply_timeout;
         for _ in 0..opts.attempts.max(1) {
             vc.inner.send(
                 &Frame::OpenSession {
@@ -505,7 +549,8 @@ impl VirtContext {
                 },
                 0,
             )?;
-            let deadline = Instant::now() + opts.reply_timeout;
+            let deadline = Instant::now() + wait;
+            wait = wait.saturating_mul(2);
             let mut st = vc.inner.lock();
             loop {
                 if let Some(reason) = st.handshake_refused {
@@ -609,7 +654,7 @@ impl VirtContext {
     }
 
     /// The client's simulation time step, s (`virtSetTimeStep`).
-    pub fn set_time_step(&mut self, dt: f32) -> Result<()> {
+    pub fn set_time_step(&self, dt: f32) -> Result<()> {
         if !(dt > 0.0 && dt <= 1.0) {
             return Err(VirtError::InvalidArgument(format!(
                 "time step {dt} not in (0, 1] s"
@@ -618,11 +663,11 @@ impl VirtContext {
         self.request(Frame::SetTimeStep(conv::fx("time step", dt)?))
     }
 
-    pub fn set_indexing_mode(&mut self, mode: IndexingMode) -> Result<()> {
+    pub fn set_indexing_mode(&self, mode: IndexingMode) -> Result<()> {
         self.request(Frame::SetIndexingMode(mode))
     }
 
-    pub fn set_command_type(&mut self, ty: CommandType) -> Result<()> {
+    pub fn set_command_type(&self, ty: CommandType) -> Result<()> {
         self.request(Frame::SetCommandType(ty))
     }
 
@@ -657,12 +702,12 @@ impl VirtContext {
     }
 
     /// World → arm base, `[x,y,z,qx,qy,qz,qw]`.
-    pub fn set_base_frame(&mut self, pose: &[f32; 7]) -> Result<()> {
+    pub fn set_base_frame(&self, pose: &[f32; 7]) -> Result<()> {
         self.request(Frame::SetBaseFrame(conv::pose_from("base frame", pose)?))
     }
 
     /// World → observer, `[x,y,z,qx,qy,qz,qw]`.
-    pub fn set_observation_frame(&mut self, pose: &[f32; 7]) -> Result<()> {
+    pub fn set_observation_frame(&self, pose: &[f32; 7]) -> Result<()> {
         self.request(Frame::SetObservationFrame(conv::pose_from(
             "observation frame",
             pose,
@@ -670,7 +715,7 @@ impl VirtContext {
     }
 
     /// Attach a virtual object of `mass` kg and principal inertia (kg·m²).
-    pub fn attach_vo(&mut self, mass: f32, inertia: [f32; 3]) -> Result<()> {
+    pub fn attach_vo(&self, mass: f32, inertia: [f32; 3]) -> Result<()> {
         if !(mass > 0.0 && mass.is_finite()) {
             return Err(VirtError::InvalidArgument(format!(
                 "mass {mass} must be > 0"
@@ -692,32 +737,39 @@ impl VirtContext {
         self.request(Frame::AttachVirtualObject(p))
     }
 
-    pub fn detach_vo(&mut self) -> Result<()> {
+    pub fn detach_vo(&self) -> Result<()> {
         self.request(Frame::DetachVirtualObject)
     }
 
     /// Arm supply power request (`virtSetPowerOn`).
-    pub fn set_power_on(&mut self, on: bool) -> Result<()> {
+    pub fn set_power_on(&self, on: bool) -> Result<()> {
         self.request(Frame::PowerRequest(on))
     }
 
     /// Twist of the virtual object, `[vx,vy,vz,wx,wy,wz]`; sent with the
     /// next [`set_position`](Self::set_position) (call it first).
-    pub fn set_speed(&mut self, twist: &[f32; 6]) -> Result<()> {
+    pub fn set_speed(&self, twist: &[f32; 6]) -> Result<()> {
         self.check_open()?;
-        self.speed = conv::twist_from("speed", twist)?;
+        let t = conv::twist_from("speed", twist)?;
+        *match self.speed.lock() {
+            Ok(g) => g,
+            Err(p) => p.into_inner(),
+        } = t;
         Ok(())
     }
 
     /// Pose of the virtual object, `[x,y,z,qx,qy,qz,qw]`: streams one
     /// VprStream frame (pose + the last speed given). Not acknowledged.
-    pub fn set_position(&mut self, pose: &[f32; 7]) -> Result<()> {
+    pub fn set_position(&self, pose: &[f32; 7]) -> Result<()> {
         self.check_open()?;
         let pose: Pose = conv::pose_from("position", pose)?;
         self.inner.send(
             &Frame::VprStream {
                 pose,
-                twist: self.speed,
+                twist: *match self.speed.lock() {
+                    Ok(g) => g,
+                    Err(p) => p.into_inner(),
+                },
             },
             0,
         )?;
@@ -792,6 +844,14 @@ impl VirtContext {
             };
         }
         true
+    }
+
+    /// A handle that waits for the controller's answers without holding
+    /// this context (another thread may use the context meanwhile).
+    pub fn answer_waiter(&self) -> AnswerWaiter {
+        AnswerWaiter {
+            inner: self.inner.clone(),
+        }
     }
 
     /// Rate, loss and round-trip time measured so far.

@@ -345,16 +345,247 @@ fn periodic_loop_calls_back_streams_and_stops() {
     }
 }
 
-#[test]
-fn a_callback_that_overruns_raises_the_alarm() {
-    let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
-    let vc = open(&p);
-    // A callback that takes 5 periods, stopping itself after 10 calls.
+/// Run the loop at `period` for `ms` milliseconds; (calls, answers sent by
+/// the controller meanwhile).
+fn loop_for(p: &FakePeer, vc: *mut c_void, period: f32, ms: u64) -> (u32, u64) {
     let counter = Counter {
         vc,
         calls: AtomicU32::new(0),
         errors: AtomicU32::new(0),
-        sleep_us: 5000,
+        sleep_us: 0,
+        stop_after: 0,
+    };
+    let arg = &counter as *const Counter as *mut c_void;
+    // SAFETY: vc is live; counter outlives the loop (stopped below).
+    unsafe {
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        let a0 = p.stats().answers_sent;
+        assert_eq!(virtStartLoop(vc), 0);
+        std::thread::sleep(Duration::from_millis(ms));
+        assert_eq!(virtStopLoop(vc), 0);
+        let answers = p.stats().answers_sent - a0;
+        assert_eq!(counter.errors.load(Ordering::SeqCst), 0);
+        (counter.calls.load(Ordering::SeqCst), answers)
+    }
+}
+
+#[test]
+fn the_periodic_loop_follows_the_controllers_answers() {
+    // A controller with a 4 ms servo period; the application asks for 1 ms.
+    let mut p = FakePeer::start(FakePeerConfig {
+        center: [0.45, 0.05, 0.25],
+        amplitude: [0.0; 3],
+        answer_every_period: true,
+        period_us: 4000,
+        twist_every: 4,
+        ..Default::default()
+    })
+    .unwrap();
+    let vc = open(&p);
+    // SAFETY: vc is live.
+    unsafe { assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0) };
+    // At most one call (and one set-point) per answer, not one per host
+    // millisecond: ~100 answers in 400 ms.
+    let v0 = p.stats().frames.get("vpr_stream").copied().unwrap_or(0);
+    let (calls, answers) = loop_for(&p, vc, 0.001, 400);
+    let sent = p.stats().frames.get("vpr_stream").copied().unwrap_or(0) - v0;
+    assert!(calls >= 20, "{calls} calls for {answers} answers");
+    assert!(
+        calls as u64 <= answers,
+        "{calls} calls for {answers} answers"
+    );
+    assert!(
+        sent <= answers + 1,
+        "{sent} set-points for {answers} answers"
+    );
+    // A period of two servo cycles: every other answer.
+    let (calls, answers) = loop_for(&p, vc, 0.008, 400);
+    assert!(calls >= 10, "{calls} calls for {answers} answers");
+    assert!(
+        2 * calls as u64 <= answers + 2,
+        "{calls} calls for {answers} answers"
+    );
+    // No answers (the controller is gone): no calls.
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 0,
+        stop_after: 0,
+    };
+    let period = 0.004f32;
+    let arg = &counter as *const Counter as *mut c_void;
+    // SAFETY: vc is live; counter outlives the loop.
+    unsafe {
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        assert_eq!(virtStartLoop(vc), 0);
+        std::thread::sleep(Duration::from_millis(100));
+        p.stop();
+        std::thread::sleep(Duration::from_millis(20));
+        let before = counter.calls.load(Ordering::SeqCst);
+        assert!(before >= 5, "{before} calls");
+        std::thread::sleep(Duration::from_millis(200));
+        assert_eq!(counter.calls.load(Ordering::SeqCst), before);
+        assert_eq!(virtStopLoop(vc), 0);
+        let _ = virtClose(vc);
+    }
+}
+
+#[test]
+fn the_loop_runs_while_another_thread_waits_for_a_button() {
+    let mut p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 0,
+        stop_after: 0,
+    };
+    let period = 0.001f32;
+    let addr = vc as usize;
+    // SAFETY: vc is live until virtClose below, after the waiting thread
+    // and the loop have ended; counter outlives the loop.
+    unsafe {
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        assert_eq!(virtSetTimeoutValue(vc, 0.3), 0);
+        let arg = &counter as *const Counter as *mut c_void;
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        assert_eq!(virtStartLoop(vc), 0);
+        // No button is pressed: the waiting thread blocks while the
+        // controller answers.
+        // (The context outlives this thread: joined below.)
+        let waiter = std::thread::spawn(move || {
+            let r = virtWaitPressButton(addr as *mut c_void, 0);
+            (r, virtGetErrorCode(addr as *mut c_void))
+        });
+        std::thread::sleep(Duration::from_millis(100));
+        let (c0, a0) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
+        std::thread::sleep(Duration::from_millis(300));
+        let (c1, a1) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
+        assert!(!waiter.is_finished(), "returned without a press");
+        // The loop kept its pace: a call for (nearly) every answer.
+        let (calls, answers) = (u64::from(c1 - c0), a1 - a0);
+        assert!(answers >= 50, "{answers} answers");
+        assert!(2 * calls >= answers, "{calls} calls for {answers} answers");
+        // The controller goes silent: the wait ends with a time-out.
+        p.stop();
+        let (r, code) = waiter.join().unwrap();
+        assert_eq!((r, code), (-1, VIRT_E_TIME_OUT));
+        assert_eq!(virtStopLoop(vc), 0);
+        assert_eq!(counter.errors.load(Ordering::SeqCst), 0);
+        let _ = virtClose(vc);
+    }
+}
+
+#[test]
+fn simulation_stiffness_and_damping_are_the_controllers_coupling() {
+    let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    let g = Gains::for_period(Fx::from_ratio(1000, 1_000_000));
+    let (k, b) = (g.k_lin.to_f64(), g.b_lin.to_f64());
+    let close = |a: f32, e: f64| ((a as f64) - e).abs() <= 1e-4 * e.abs().max(1.0);
+    let (mut ks, mut bs) = (0f32, 0f32);
+    // SAFETY: vc is live; the outputs are writable.
+    unsafe {
+        assert_eq!(virtGetSimulationStiffness(vc, &mut ks), 0);
+        assert_eq!(virtGetSimulationDamping(vc, &mut bs), 0);
+        assert!(close(ks, k) && close(bs, b), "{ks} {bs} vs {k} {b}");
+        assert_eq!(virtGetSimulationStiffness(vc, std::ptr::null_mut()), -1);
+        // Client units: force × 0.5, displacement × 2.
+        assert_eq!(virtSetForceFactor(vc, 0.5), 0);
+        assert_eq!(virtSetSpeedFactor(vc, 2.0), 0);
+        assert_eq!(virtGetSimulationStiffness(vc, &mut ks), 0);
+        assert_eq!(virtGetSimulationDamping(vc, &mut bs), 0);
+        assert!(close(ks, k * 0.25) && close(bs, b * 0.25), "{ks} {bs}");
+        // VIRTMECH with a light object and a long time step: the controller
+        // caps the stiffness at m / ts² (0.01 kg / (0.01 s)² = 100 N/m).
+        assert_eq!(virtSetForceFactor(vc, 1.0), 0);
+        assert_eq!(virtSetSpeedFactor(vc, 1.0), 0);
+        assert_eq!(virtSetTimeStep(vc, 0.01), 0);
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_VIRTMECH), 0);
+        let inertia = [1e-4f32; 3];
+        assert_eq!(virtAttachVO(vc, 0.01, inertia.as_ptr()), 0);
+        assert!(k > 100.0);
+        assert_eq!(virtGetSimulationStiffness(vc, &mut ks), 0);
+        assert!(close(ks, 100.0), "{ks}");
+        assert_eq!(virtGetSimulationDamping(vc, &mut bs), 0);
+        assert!(close(bs, b), "{bs}");
+        // The cap is VIRTMECH's: in IMPEDANCE the full stiffness.
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        assert_eq!(virtGetSimulationStiffness(vc, &mut ks), 0);
+        assert!(close(ks, k), "{ks}");
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn a_request_round_trip_does_not_stall_the_loop() {
+    // A controller that never acknowledges a power request: the request
+    // waits for its retries while the loop runs on.
+    let p = FakePeer::start(FakePeerConfig {
+        center: [0.45, 0.05, 0.25],
+        amplitude: [0.0; 3],
+        answer_every_period: true,
+        twist_every: 4,
+        ignore_power_requests: true,
+        ..Default::default()
+    })
+    .unwrap();
+    let vc = open(&p);
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 0,
+        stop_after: 0,
+    };
+    let period = 0.001f32;
+    let addr = vc as usize;
+    // SAFETY: vc is live until virtClose below, after the requesting thread
+    // and the loop have ended; counter outlives the loop.
+    unsafe {
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        // 4 attempts of 0.15 s.
+        assert_eq!(virtSetTimeoutValue(vc, 0.6), 0);
+        let arg = &counter as *const Counter as *mut c_void;
+        assert_eq!(virtSetPeriodicFunction(vc, Some(callback), &period, arg), 0);
+        assert_eq!(virtStartLoop(vc), 0);
+        std::thread::sleep(Duration::from_millis(50));
+        // (The context outlives this thread: joined below.)
+        let requester = std::thread::spawn(move || {
+            let r = virtSetPowerOn(addr as *mut c_void, 1);
+            (r, virtGetErrorCode(addr as *mut c_void))
+        });
+        std::thread::sleep(Duration::from_millis(100));
+        let (c0, a0) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
+        std::thread::sleep(Duration::from_millis(300));
+        let (c1, a1) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
+        assert!(!requester.is_finished(), "the request ended early");
+        let (calls, answers) = (u64::from(c1 - c0), a1 - a0);
+        assert!(answers >= 50, "{answers} answers");
+        assert!(2 * calls >= answers, "{calls} calls for {answers} answers");
+        let (r, code) = requester.join().unwrap();
+        assert_eq!((r, code), (-1, VIRT_E_TIME_OUT));
+        assert_eq!(virtStopLoop(vc), 0);
+        assert_eq!(counter.errors.load(Ordering::SeqCst), 0);
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn a_callback_that_overruns_raises_the_alarm() {
+    let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    // A callback that takes 20 periods, stopping itself after 10 calls (an
+    // overrun is measured on the controller's clock: the fake must have
+    // answered past the next call's cycle meanwhile, which a loaded host
+    // could delay for a few ms, not for 20).
+    let counter = Counter {
+        vc,
+        calls: AtomicU32::new(0),
+        errors: AtomicU32::new(0),
+        sleep_us: 20_000,
         stop_after: 10,
     };
     let period = 0.001f32;
@@ -447,15 +678,18 @@ fn trajectory_recording_writes_the_handle_poses() {
     for (i, r) in rows.iter().enumerate() {
         assert_eq!(r.len(), 9, "{r:?}");
         assert!((r[1] - 0.45).abs() <= 0.05 + 1e-6 && (r[2] - 0.05).abs() < 1e-6);
+        // Controller time: the cycles since the first sample × 1 ms.
+        assert!(
+            (r[0] - (r[8] - rows[0][8]) * 0.001).abs() < 1e-6,
+            "{:?} {r:?}",
+            rows[0]
+        );
         if i > 0 {
-            // Times on the sampling grid, increasing; controller cycles too.
+            // One sample per grid point of 5 cycles reached, the grid
+            // starting at the first sample: never two in one interval.
             let prev = &rows[i - 1];
-            let steps = (r[0] - prev[0]) / 0.005;
-            assert!(
-                steps >= 0.999 && (steps - steps.round()).abs() < 1e-3,
-                "{prev:?} {r:?}"
-            );
-            assert!(r[8] >= prev[8], "{prev:?} {r:?}");
+            let (k_prev, k) = ((prev[8] - rows[0][8]) / 5.0, (r[8] - rows[0][8]) / 5.0);
+            assert!(k.floor() > k_prev.floor(), "{prev:?} {r:?}");
         }
     }
     // The handle moves: the samples differ.

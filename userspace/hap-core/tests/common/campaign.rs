@@ -7,7 +7,7 @@
 
 use hap_core::arm;
 use hap_core::config::{CommandType, ServoConfig, VirtualObjectParams};
-use hap_core::control::{brake_gains, BRAKE_START, MAX_FORCE};
+use hap_core::control::{brake_gains, BRAKE_START, D_CLAMP, MAX_FORCE};
 use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Joints, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
@@ -659,8 +659,17 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
                         work += tc * dq;
                         credit += f(arm::DAMPING[i]) * dq * dq / t;
                     }
-                    let dpt = v3(tgt.position.sub(pt.position));
-                    let dth = v3(tgt.orientation.error_vector(&pt.orientation));
+                    // The client's step as the spring sees it: the change
+                    // of its error (bounded to D_CLAMP per component; the
+                    // rotation's error vector) at the handle pose now.
+                    let hn = arm::kinematics(&qn).handle;
+                    let clamp_d =
+                        |p: Vec3| v3(p.sub(hn.position)).map(|x| x.clamp(-f(D_CLAMP), f(D_CLAMP)));
+                    let (dn, d0) = (clamp_d(tgt.position), clamp_d(pt.position));
+                    let dpt: [f64; 3] = std::array::from_fn(|k| dn[k] - d0[k]);
+                    let en = v3(tgt.orientation.error_vector(&hn.orientation));
+                    let e0 = v3(pt.orientation.error_vector(&hn.orientation));
+                    let dth: [f64; 3] = std::array::from_fn(|k| en[k] - e0[k]);
                     // Target port: trapezoid of the wrench before and after
                     // the client's (sampled) step.
                     // (After the step: the spring's force before the motor

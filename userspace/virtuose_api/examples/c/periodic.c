@@ -1,9 +1,10 @@
 /*
  * periodic.c - a VirtuoseAPI client in the periodic-callback style, written
  * against Haption's declarations only (VirtuoseAPI.h): impedance mode, the
- * library calls back every time step; the callback reads the handle's
- * physical position and pushes it back toward where it started with a
- * spring (virtSetForce), saturated by virtSaturateTorque.
+ * library calls back every time step of the controller (paced by its
+ * answers); the callback reads the handle's physical position and pushes it
+ * back toward where it started with a spring (virtSetForce), saturated by
+ * virtSaturateTorque.
  *
  *   cc -I include periodic.c libvirtuose_api.a -lpthread -ldl -lm -o periodic
  *   ./periodic 127.0.0.1#5000 [milliseconds]
