@@ -490,10 +490,11 @@ const fn udiv_q32(a: u64, b: u64) -> u64 {
 /// reference in the tests), in about a tenth of the instructions.
 const fn frac_q32_wide(r: u64, b: u64) -> u64 {
     const DIGIT: u64 = 1 << 32;
-    // b > r ≥ 2^32: s < 32, and r < b keeps r << s below 2^64.
+    // b > r ≥ 2^32: s < 32, and r < b keeps r << s below 2^64 (the
+    // wrapping shifts take s as it is: no shift-overflow panic path).
     let s = b.leading_zeros();
-    let v = b << s;
-    let u = r << s;
+    let v = b.wrapping_shl(s);
+    let u = r.wrapping_shl(s);
     let v1 = v >> 32;
     let v0 = v & 0xFFFF_FFFF;
     // v1 ≥ 2^31: the fallbacks are never taken (no panic path).
