@@ -38,13 +38,7 @@ while [ $# -gt 0 ]; do
 done
 [ "$(id -u)" = 0 ] || die "needs root (the spoofed datagrams are sent from a raw socket)"
 mkdir -p "$results"; rm -f "$results"/*
-pass=0; fail=0
-ok() { pass=$((pass + 1)); echo "ok - $*"; }
-nok() { fail=$((fail + 1)); echo "not ok - $*"; }
-isnum() { [[ "$1" =~ ^-?[0-9]+(\.[0-9]+)?$ ]]; }
-check_num() { # desc value op limit (a missing value fails)
-  if isnum "$2" && isnum "$4" && awk -v v="$2" -v l="$4" "BEGIN { exit !(v $3 l) }"; then ok "$1 ($2 $3 $4)"; else nok "$1 (got '$2', want $3 $4)"; fi
-}
+. "$ROOT/tests/e2e/lib.sh"
 demo="$ROOT/userspace/target/release/virtuose_demo"
 (cd "$ROOT/userspace" && cargo build --release --quiet -p virtuose_demo) || die "cannot build virtuose_demo"
 key=$(hap_keyfile "$ROOT/build/hap-test.key")
@@ -139,10 +133,10 @@ check_num "module: exactly one session" "$(gv hap_stats.txt sessions_opened)" '=
 check_num "bridge and module count the same sessions" "$(gv proto_interface.txt sessions_opened)" '==' "$(gv hap_stats.txt sessions_opened)"
 udp=$(sed -n 's/^HAP-UDP .*InDatagrams=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)
 rcvbuf=$(sed -n 's/^HAP-UDP .*RcvbufErrors=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)
-forged_in=$(( $(gv proto_interface.txt rejected_bad_tag) + $(gv proto_interface.txt rejected_rate_limited) + $(gv proto_interface.txt rejected_wrong_session) ))
+forged_in=$(sum "$(gv proto_interface.txt rejected_bad_tag)" "$(gv proto_interface.txt rejected_rate_limited)" "$(gv proto_interface.txt rejected_wrong_session)")
 echo "# FIGURE forged: sent $((forged + 20000)) (phase 1: 10^4, phase 2: $forged spoofed + 10^4); the guest's UDP delivered $udp datagrams to the bridge ($rcvbuf dropped for a full receive buffer); refused as forged (bad tag, rate limited, wrong session): $forged_in"
 check_num "guest: every datagram delivered to the bridge's socket was read (UDP InDatagrams = bridge received)" "$rcv" '==' "$udp"
-check_num "bridge: each datagram counted once (received = forwarded + write errors + re-acked + refused by reason)" "$rcv" '==' "$(( fwd + $(gv proto_interface.txt write_errors) + $(gv proto_interface.txt retransmits_reacked) + $(gv proto_interface.txt rejected) ))"
+check_num "bridge: each datagram counted once (received = forwarded + write errors + re-acked + refused by reason)" "$rcv" '==' "$(sum "$fwd" "$(gv proto_interface.txt write_errors)" "$(gv proto_interface.txt retransmits_reacked)" "$(gv proto_interface.txt rejected)")"
 check_num "bridge: forged frames refused (bad tag + rate limited + wrong session)" "$forged_in" '>=' 1
 check_num "bridge: the spoofed frames from the client's own address refused at the tag during the session" "$(gv proto_interface.txt rejected_bad_tag)" '>=' 1
 check_num "bridge: the flood from another port was rate limited" "$(gv proto_interface.txt rejected_rate_limited)" '>=' 1
