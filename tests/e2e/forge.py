@@ -6,13 +6,22 @@
       power on, impedance, then vpr_stream frames 0.2 m away at ~1 kHz,
       all with valid CRC-32C. Prints what it sent and whether anything came back.
   forge.py forge HOST PORT COUNT [--spoof SRCPORT] [--rate N] [--session ID]
+                 [--guest-rate R --pace-log CLIENT_LOG --period-us P]
       COUNT v2 vpr_stream frames (84 bytes, version 2, the right layout),
       session ids 1..16 (--session: always ID, the id an eavesdropper reads
       in the session's own frames), increasing sequence numbers ahead of any
       client's, random tags: only the tag can refuse them. With --spoof,
       sent from a raw socket with source 127.0.0.1:SRCPORT: the session's
-      own client address (needs root). --rate: datagrams/s.
+      own client address (needs root). --rate: datagrams per host second.
+      --guest-rate: R datagrams per second of the guest's clock instead.
+      Under icount the guest's clock runs several times slower than the
+      host's, and by a factor that moves with the host's load; a flood paced
+      in host time would hit the guest that many times denser. The guest's
+      clock is read from the client's status lines in CLIENT_LOG ("rate=
+      N Hz": answers per host second, one per servo period P us); the flood
+      is spread over the guest time that passes, whatever the host's speed.
 """
+import re
 import os
 import socket
 import struct
@@ -87,7 +96,35 @@ def udp_raw(src_port, dst, payload):
     return ip + udp
 
 
-def forge(host, port, count, spoof, rate, session=None):
+class GuestClock:
+    """Guest seconds per host second, from the client's latest status line."""
+
+    RATE = re.compile(r"rate=\s*([0-9.]+)Hz")
+
+    def __init__(self, path, period_us):
+        self.path, self.period_s, self.ratio, self.seen = path, period_us / 1e6, None, []
+        self.grew = time.monotonic()
+
+    def quiet_for(self):
+        """Host seconds since the client last wrote a line."""
+        return time.monotonic() - self.grew
+
+    def read(self):
+        try:
+            with open(self.path, errors="replace") as f:
+                text = f.read()
+        except OSError:
+            text = ""
+        if len(text) != getattr(self, "size", -1):
+            self.size, self.grew = len(text), time.monotonic()
+        rates = self.RATE.findall(text)
+        if rates:
+            self.ratio = float(rates[-1]) * self.period_s
+            self.seen.append(self.ratio)
+        return self.ratio
+
+
+def forge(host, port, count, spoof, rate, session=None, guest_rate=None, clock=None):
     if spoof is not None:
         s = socket.socket(socket.AF_INET, socket.SOCK_RAW, socket.IPPROTO_RAW)
     else:
@@ -95,7 +132,27 @@ def forge(host, port, count, spoof, rate, session=None):
     body = pose(0.2) + bytes(24)
     t0 = time.monotonic()
     sent = 0
+    # Paced on the guest's clock: `allowed` grows by guest_rate per guest
+    # second (host seconds times the latest ratio read from the client).
+    allowed, t_last, t_read, ratio = 0.0, t0, 0.0, None
+    stopped = ""
     for i in range(count):
+        if clock is not None and i % 50 == 0:
+            while True:
+                now = time.monotonic()
+                if now - t_read >= 0.2:
+                    t_read = now
+                    ratio = clock.read() or ratio
+                if clock.quiet_for() > 10:
+                    stopped = " (stopped: the client wrote nothing for 10 s)"
+                    break
+                allowed += guest_rate * (ratio or 0.05) * (now - t_last)
+                t_last = now
+                if sent < allowed:
+                    break
+                time.sleep(0.002)
+            if stopped:
+                break
         sid = session if session is not None else 1 + i % 16
         f = header(2, 0x0C, 0, sid, 1_000_000 + i, i) + body + os.urandom(16)
         if spoof is not None:
@@ -103,13 +160,17 @@ def forge(host, port, count, spoof, rate, session=None):
         else:
             s.sendto(f, (host, port))
         sent += 1
-        if rate and i % 100 == 99:
+        if clock is None and rate and i % 100 == 99:
             ahead = sent / rate - (time.monotonic() - t0)
             if ahead > 0:
                 time.sleep(ahead)
     dt = time.monotonic() - t0
+    paced = ""
+    if clock is not None and clock.seen:
+        paced = (f", paced at {guest_rate} per guest second (guest/host clock ratio "
+                 f"{min(clock.seen):.3f}..{max(clock.seen):.3f})")
     print(f"forged: sent {sent} v2 frames{' spoofed from port %d' % spoof if spoof is not None else ''}"
-          f"{' with session id %d' % session if session is not None else ''} in {dt:.1f} s")
+          f"{' with session id %d' % session if session is not None else ''} in {dt:.1f} s{paced}{stopped}")
 
 
 def main(a):
@@ -119,7 +180,14 @@ def main(a):
         spoof = int(a[a.index("--spoof") + 1]) if "--spoof" in a else None
         rate = int(a[a.index("--rate") + 1]) if "--rate" in a else 0
         session = int(a[a.index("--session") + 1]) if "--session" in a else None
-        forge(a[1], int(a[2]), int(a[3]), spoof, rate, session)
+        guest_rate = int(a[a.index("--guest-rate") + 1]) if "--guest-rate" in a else None
+        clock = None
+        if guest_rate is not None:
+            if "--pace-log" not in a or "--period-us" not in a:
+                print("forge.py: --guest-rate needs --pace-log and --period-us", file=sys.stderr)
+                sys.exit(2)
+            clock = GuestClock(a[a.index("--pace-log") + 1], int(a[a.index("--period-us") + 1]))
+        forge(a[1], int(a[2]), int(a[3]), spoof, rate, session, guest_rate, clock)
     else:
         print(__doc__, file=sys.stderr)
         sys.exit(2)

@@ -75,6 +75,9 @@ t=0
 while [ $t -lt $((max_s * 10)) ]; do
   opened=$(stat_value sessions_opened); cur=$(stat_value session)
   [ "${opened:-0}" -ge 1 ] && [ "$cur" = 0 ] && break
+  # A fail-safe ends the session too (and stops PROTO_IN, which then
+  # never clears it): print the statistics now, not at the time-out.
+  [ "$(stat_value fail_safe)" = 1 ] && break
   usleep 100000
   t=$((t + 1))
 done
