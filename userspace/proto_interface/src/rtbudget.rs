@@ -15,9 +15,12 @@
 //! windows of [`WINDOW`]: a window in which it used more than its share
 //! (`--rt-budget`, percent of one CPU) demotes it to SCHED_OTHER, where it
 //! goes on serving at a fair share; the first window within the share
-//! restores SCHED_FIFO. The real-time load the bridge can put on the CPU is
-//! thus one window at full use, then at most its share; the CLIENT thread
-//! (answers, one per servo cycle at most) keeps its priority.
+//! restores SCHED_FIFO. At SCHED_FIFO the thread thus holds the CPU for at
+//! most one window at a time, and each such window is followed by at least
+//! one at SCHED_OTHER: the SCHED_OTHER tasks are never starved for much more
+//! than a window, far below the fair server's threshold (most of a second).
+//! The CLIENT thread (answers, one per servo cycle at most) keeps its
+//! priority.
 //!
 //! [`RtBudget`] is the decision alone (time and CPU time are given to it, so
 //! that it is tested on the host without a real-time priority);
