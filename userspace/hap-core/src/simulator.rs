@@ -168,7 +168,9 @@ impl Simulator {
                 dt_over_i[i] = dt.div_sat(kin.inertia[i]);
             }
         }
-        let coulomb_gain = COULOMB_GAIN;
+        // Per joint and period: whether the sum below can skip its
+        // saturation checks as far as the once-per-period torque goes.
+        let base_small = base.map(|b| within(b, 1 << 45));
         let mut limit = false;
         let mut cut = false;
         for _ in 0..SUBSTEPS {
@@ -178,36 +180,38 @@ impl Simulator {
             self.applied = motor;
             for i in 0..6 {
                 let (q, qd) = (self.q[i], self.qd[i]);
-                let mut tau =
-                    if within(qd, 1 << 40) && within(base[i], 1 << 45) && within(motor[i], 1 << 45)
-                    {
-                        // No sum below can saturate (|base + motor| < 2^46,
-                        // |b·q̇| < 2^42 raw, |fc·sat| ≤ 2^33): plain sums, the
-                        // same result as the saturating ones. q̇·100 clamped to
-                        // ±1 by comparing q̇ with ⌈2^32/100⌉ raw (the product
-                        // below it cannot overflow).
-                        let sat = if qd.0 >= COULOMB_KNEE {
-                            Fx::ONE
-                        } else if qd.0 <= -COULOMB_KNEE {
-                            Fx::ONE.neg_sat()
-                        } else {
-                            Fx(qd.0.wrapping_mul(coulomb_gain))
-                        };
-                        Fx(base[i]
-                            .0
-                            .wrapping_add(motor[i].0)
-                            .wrapping_sub(qd.mul_unit(arm::DAMPING[i]).0)
-                            .wrapping_sub(sat.mul_unit(arm::COULOMB[i]).0))
+                let mut tau = if within(qd, 1 << 40) && base_small[i] && within(motor[i], 1 << 45) {
+                    // No sum below can saturate (|base + motor| < 2^46,
+                    // |b·q̇| < 2^42 raw, |fc·sat| ≤ 2^33): plain sums, the
+                    // same result as the saturating ones. q̇·100 clamped to
+                    // ±1 by comparing q̇ with ⌈2^32/100⌉ raw (the product
+                    // below it cannot overflow). The damping and friction
+                    // products are `mul_unit`'s with the constant's Q2.30
+                    // factor taken once (`DAMPING_Q30`, `COULOMB_Q30`) and
+                    // no saturation (|q̇|, |sat| < 2^8: the high partial
+                    // product is below 2^40): the same values.
+                    let sat = if qd.0 >= COULOMB_KNEE {
+                        Fx::ONE.0
+                    } else if qd.0 <= -COULOMB_KNEE {
+                        -Fx::ONE.0
                     } else {
-                        base[i]
-                            .add_sat(motor[i])
-                            .sub_sat(qd.mul_unit(arm::DAMPING[i]))
-                            .sub_sat(
-                                qd.mul_int(coulomb_gain)
-                                    .clamp_abs(Fx::ONE)
-                                    .mul_unit(arm::COULOMB[i]),
-                            )
+                        qd.0.wrapping_mul(COULOMB_GAIN)
                     };
+                    Fx(base[i]
+                        .0
+                        .wrapping_add(motor[i].0)
+                        .wrapping_sub(mul_q30(qd.0, DAMPING_Q30[i]))
+                        .wrapping_sub(mul_q30(sat, COULOMB_Q30[i])))
+                } else {
+                    base[i]
+                        .add_sat(motor[i])
+                        .sub_sat(qd.mul_unit(arm::DAMPING[i]))
+                        .sub_sat(
+                            qd.mul_int(COULOMB_GAIN)
+                                .clamp_abs(Fx::ONE)
+                                .mul_unit(arm::COULOMB[i]),
+                        )
+                };
                 if q > arm::Q_MAX[i] {
                     limit = true;
                     let t = arm::STOP_STIFFNESS[i]
@@ -237,6 +241,49 @@ const COULOMB_GAIN: i64 = 100;
 
 /// The smallest raw q̇ with `q̇ · COULOMB_GAIN ≥ 1` (⌈2^32 / 100⌉).
 const COULOMB_KNEE: i64 = (Fx::ONE.0 + COULOMB_GAIN - 1) / COULOMB_GAIN;
+
+/// `u`'s factor as [`Fx::mul_unit`] takes it: Q2.30, clamped to ±2.
+const fn q30_of(u: Fx) -> i64 {
+    let u30 = u.0 >> 2;
+    if u30 > (1 << 31) {
+        1 << 31
+    } else if u30 < -(1 << 31) {
+        -(1 << 31)
+    } else {
+        u30
+    }
+}
+
+/// `arm::DAMPING` and `arm::COULOMB` as `mul_unit` factors.
+const DAMPING_Q30: [i64; 6] = {
+    let d = arm::DAMPING;
+    [
+        q30_of(d[0]),
+        q30_of(d[1]),
+        q30_of(d[2]),
+        q30_of(d[3]),
+        q30_of(d[4]),
+        q30_of(d[5]),
+    ]
+};
+const COULOMB_Q30: [i64; 6] = {
+    let c = arm::COULOMB;
+    [
+        q30_of(c[0]),
+        q30_of(c[1]),
+        q30_of(c[2]),
+        q30_of(c[3]),
+        q30_of(c[4]),
+        q30_of(c[5]),
+    ]
+};
+
+/// Raw `x.mul_unit(u)` for `u30 = q30_of(u)` and `|x| < 2^40` raw: then
+/// `|u30·⌊x/2^32⌋| < 2^39`, so none of `mul_unit`'s saturations can act and
+/// the wrapping operations are exact: the same value.
+const fn mul_q30(x: i64, u30: i64) -> i64 {
+    (u30.wrapping_mul(x >> 32) << 2).wrapping_add(u30.wrapping_mul(x & 0xFFFF_FFFF) >> 30)
+}
 
 /// `|x| < lim` raw.
 const fn within(x: Fx, lim: i64) -> bool {
