@@ -2,13 +2,14 @@
 //! position-log record it produces each cycle.
 //!
 //! One call integrates the joint dynamics of [`super::arm`] over one servo
-//! period with `SUBSTEPS` semi-implicit Euler sub-steps:
+//! period with [`substeps`]`(period)` semi-implicit Euler sub-steps (no
+//! longer than [`MAX_SUBSTEP_NS`]):
 //!
 //! ```text
 //! τ = Jᵀ·w_user + τ_gravity                                       (once per period)
 //!     + τ_motor (the motor line, read now: 0 unless enabled and powered)
 //!     − b·q̇ − fc·sat(q̇/0.01) + τ_stop(q, q̇)                      (every sub-step)
-//! q̇ ← q̇ + dt·τ / I(q)      q ← q + dt·q̇                           (dt = period / SUBSTEPS)
+//! q̇ ← q̇ + dt·τ / I(q)      q ← q + dt·q̇                           (dt = period / n)   
 //! ```
 //!
 //! Kinematics, gravity, inertia and the Jacobian are evaluated once per period
@@ -29,8 +30,32 @@ use super::effort::EffortSample;
 use super::fixed::{Fx, Joints, Vec3, Wrench, JOINTS_ZERO};
 use super::io::{Gate, MotorLine};
 
-/// Integration sub-steps per servo period.
-pub const SUBSTEPS: u32 = 4;
+/// Longest integration sub-step, ns. Semi-implicit Euler at this step is
+/// far inside its stability region for every joint of [`super::arm`]: the
+/// stiffest stop (`STOP_STIFFNESS / I`, joint 6: 20 / 0.001) gives
+/// `ω·dt = 141 rad/s · 0.5 ms = 0.07` (stable below 2), and the strongest
+/// damping, Coulomb friction in its linear band plus viscous and stop damping
+/// (joint 6: (0.3 + 0.03 + 0.3) N·m·s/rad / 0.001 kg·m²), gives
+/// `b·dt/I = 0.32`: below 1, so no sub-step overshoots (a joint never
+/// reverses under its own damping within a step).
+pub const MAX_SUBSTEP_NS: u32 = 500_000;
+
+/// Largest sub-step count (a 32 ms period).
+pub const MAX_SUBSTEPS: u32 = 64;
+
+/// Integration sub-steps for a servo period of `period_ns`: the fewest with
+/// sub-steps no longer than [`MAX_SUBSTEP_NS`] (1 at 100 µs to 500 µs, 2 at
+/// 1 ms, 20 at 10 ms), at least 1, at most [`MAX_SUBSTEPS`].
+pub const fn substeps(period_ns: u32) -> u32 {
+    let n = period_ns.div_ceil(MAX_SUBSTEP_NS);
+    if n < 1 {
+        1
+    } else if n > MAX_SUBSTEPS {
+        MAX_SUBSTEPS
+    } else {
+        n
+    }
+}
 
 /// What the hardware returns (hap_io `get_measures`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -63,6 +88,8 @@ pub struct Simulator {
     /// The motor line was cut by the fail-safe during the last period.
     line_cut: bool,
     period: Fx,
+    /// [`substeps`] of the period.
+    substeps: u32,
     user: EffortSample,
     kin: Kinematics,
     kin_valid: bool,
@@ -78,6 +105,7 @@ impl Simulator {
             applied: JOINTS_ZERO,
             line_cut: false,
             period: Fx::from_ns(period_ns as u64),
+            substeps: substeps(period_ns),
             user: EffortSample::NONE,
             kin: Kinematics::ZERO,
             kin_valid: false,
@@ -155,7 +183,12 @@ impl Simulator {
     #[allow(clippy::needless_range_loop)]
     #[inline(never)]
     pub fn simulate_arm(&mut self, line: &MotorLine) {
-        let dt = Fx(self.period.0 / SUBSTEPS as i64);
+        // `substeps` is 1..=MAX_SUBSTEPS (the fallback cannot be taken).
+        let dt = Fx(self
+            .period
+            .0
+            .checked_div(i64::from(self.substeps))
+            .unwrap_or(self.period.0));
         let wrench = self.user.wrench;
         let mut base = JOINTS_ZERO;
         let mut dt_over_i = JOINTS_ZERO;
@@ -173,7 +206,7 @@ impl Simulator {
         let base_small = base.map(|b| within(b, 1 << 45));
         let mut limit = false;
         let mut cut = false;
-        for _ in 0..SUBSTEPS {
+        for _ in 0..self.substeps {
             // The motors apply what the line lets through, now.
             let motor = line.applied();
             cut |= line.gate() == Gate::FailSafe;

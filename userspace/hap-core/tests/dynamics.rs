@@ -72,7 +72,39 @@ fn kinematics_match_reference() {
 
 #[test]
 fn ten_seconds_of_scripted_effort_match_reference() {
-    let period_ns = 1_000_000u32;
+    scripted_effort_matches_reference(1_000_000, 10_000);
+}
+
+/// The same at the module's shortest period (one sub-step a period) and at
+/// 10 ms (20 sub-steps), 2 s each.
+#[test]
+fn scripted_effort_matches_reference_at_100us_and_10ms() {
+    scripted_effort_matches_reference(100_000, 20_000);
+    scripted_effort_matches_reference(10_000_000, 200);
+}
+
+#[test]
+fn substeps_are_at_most_half_a_millisecond() {
+    use hap_core::simulator::{substeps, MAX_SUBSTEPS, MAX_SUBSTEP_NS};
+    assert_eq!(substeps(0), 1);
+    assert_eq!(substeps(100_000), 1);
+    assert_eq!(substeps(500_000), 1);
+    assert_eq!(substeps(500_001), 2);
+    assert_eq!(substeps(1_000_000), 2);
+    assert_eq!(substeps(10_000_000), 20);
+    assert_eq!(substeps(u32::MAX), MAX_SUBSTEPS);
+    for p in (50_000u32..=32_000_000).step_by(12_345) {
+        let n = substeps(p);
+        assert!(p.div_ceil(n) <= MAX_SUBSTEP_NS, "{p} ns in {n} sub-steps");
+        assert!(
+            n == 1 || p.div_ceil(n - 1) > MAX_SUBSTEP_NS,
+            "{p} ns: {n} is not the fewest"
+        );
+    }
+}
+
+fn scripted_effort_matches_reference(period_ns: u32, steps: u32) {
+    let period = f64::from(period_ns) * 1e-9;
     let mut sim = Simulator::new(period_ns);
     let line = MotorLine::new();
     assert!(line.power_on());
@@ -80,14 +112,14 @@ fn ten_seconds_of_scripted_effort_match_reference() {
     let mut rf = reference::RefSim {
         q: arm::WORK_Q.map(|v| v.to_f64()),
         qd: [0.0; 6],
-        period: 1e-3,
+        period,
     };
     let mut worst_q = 0.0f64;
     let mut worst_p = 0.0f64;
     let mut travel = 0.0f64;
     let start = reference::kinematics(&rf.q).handle;
-    for n in 0..10_000 {
-        let t = n as f64 * 1e-3;
+    for n in 0..steps {
+        let t = f64::from(n) * period;
         let (f, tq) = scripted(t);
         // Fixed side: gravity compensation computed in fixed point.
         let kin = arm::kinematics(&sim.q);
@@ -115,7 +147,7 @@ fn ten_seconds_of_scripted_effort_match_reference() {
         worst_p = worst_p.max((hf - hr).norm());
         travel = travel.max((hr - start).norm());
     }
-    println!("10 s scripted effort: max |q_fx - q_f64| = {worst_q:.3e} rad, handle {worst_p:.3e} m (handle travelled up to {travel:.3} m)");
+    println!("{} s scripted effort at {period_ns} ns: max |q_fx - q_f64| = {worst_q:.3e} rad, handle {worst_p:.3e} m (handle travelled up to {travel:.3} m)", f64::from(steps) * period);
     assert!(travel > 0.05, "the script should move the arm");
     assert!(worst_q <= 1e-5, "{worst_q}");
     assert!(worst_p <= 1e-5, "{worst_p}");
