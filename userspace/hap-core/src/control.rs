@@ -743,7 +743,7 @@ pub fn cartesian_control(
     // gain ≤ 1 on the coupling, which the observer sees). A joint over its
     // brake speed must not be driven along its motion: then the whole
     // coupling vector is 0 this cycle.
-    let tau_c = arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench);
+    let tau_c = kin.jacobian_transpose_mul(&handle_wrench);
     let mut s = Fx::ONE;
     for (((tc, tf), lim), (qd, o)) in tau_c
         .iter()
@@ -759,7 +759,7 @@ pub fn cartesian_control(
     let tau_c = if s < Fx::ONE {
         alarms |= alarm::TORQUE_SATURATED;
         handle_wrench = handle_wrench.scale(s);
-        arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench)
+        kin.jacobian_transpose_mul(&handle_wrench)
     } else {
         // The wrench is unchanged: so are its joint torques.
         tau_c

@@ -712,13 +712,26 @@ impl UnitFactor {
 
     /// Raw Q32.32 of `x · u`; `u` as in [`Fx::mul_unit`] (Q2.30, clamped to ±2).
     pub(crate) const fn mul(self, u: Fx) -> i64 {
-        let mut u30 = u.0 >> 2;
-        if u30 > (1 << 31) {
-            u30 = 1 << 31;
-        } else if u30 < -(1 << 31) {
-            u30 = -(1 << 31);
-        }
+        self.mul30(unit30(u))
+    }
+
+    /// [`UnitFactor::mul`] with the factor already taken by [`unit30`]
+    /// (`|u30| ≤ 2^31`): the same value.
+    pub(crate) const fn mul30(self, u30: i64) -> i64 {
         (u30.wrapping_mul(self.h) << 2).wrapping_add(u30.wrapping_mul(self.l) >> 30)
+    }
+}
+
+/// `u` as [`Fx::mul_unit`] and [`UnitFactor::mul`] take it: Q2.30 (the two
+/// lowest raw bits dropped), clamped to ±2^31 (±2).
+pub(crate) const fn unit30(u: Fx) -> i64 {
+    let u30 = u.0 >> 2;
+    if u30 > (1 << 31) {
+        1 << 31
+    } else if u30 < -(1 << 31) {
+        -(1 << 31)
+    } else {
+        u30
     }
 }
 

@@ -163,14 +163,15 @@ impl Simulator {
     #[inline(never)]
     pub fn measures(&mut self, line: &MotorLine) -> Measures {
         let user = self.user;
-        let rot = self.kinematics().handle_rot;
+        let kin = self.kinematics();
+        let force_sensor = Wrench {
+            force: kin.rot_tmul(user.wrench.force),
+            torque: kin.rot_tmul(user.wrench.torque),
+        };
         Measures {
             encoders: self.q.map(arm::encoder_counts),
             joint_speeds: self.qd,
-            force_sensor: Wrench {
-                force: rot.tmul_vec_unit(user.wrench.force),
-                torque: rot.tmul_vec_unit(user.wrench.torque),
-            },
+            force_sensor,
             power_on: line.supply_on(),
             dead_man: user.dead_man,
             buttons: user.buttons,
@@ -195,7 +196,7 @@ impl Simulator {
         {
             // Borrowed, not copied: only the Jacobian, gravity and inertia.
             let kin = self.kinematics();
-            let user_tau = arm::jacobian_transpose_mul(&kin.jacobian, &wrench);
+            let user_tau = kin.jacobian_transpose_mul(&wrench);
             for i in 0..6 {
                 base[i] = user_tau[i].add_sat(kin.gravity[i]);
                 dt_over_i[i] = dt.div_sat(kin.inertia[i]);

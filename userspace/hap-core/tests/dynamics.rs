@@ -51,8 +51,8 @@ fn kinematics_match_reference() {
         let e = (Vector3::from(hp) - kr.handle).abs().max();
         worst[0] = worst[0].max(e);
         for i in 0..6 {
-            let l = Vector3::from(kf.jacobian[i].linear.to_f64()) - kr.jac[i].0;
-            let a = Vector3::from(kf.jacobian[i].angular.to_f64()) - kr.jac[i].1;
+            let l = Vector3::from(kf.jacobian()[i].linear.to_f64()) - kr.jac[i].0;
+            let a = Vector3::from(kf.jacobian()[i].angular.to_f64()) - kr.jac[i].1;
             worst[1] = worst[1].max(l.abs().max()).max(a.abs().max());
             worst[2] = worst[2].max((kf.gravity[i].to_f64() - kr.gravity[i]).abs());
             worst[3] = worst[3].max((kf.inertia[i].to_f64() - kr.inertia[i]).abs());
@@ -68,6 +68,62 @@ fn kinematics_match_reference() {
     }
     println!("kinematics max |err|: handle {:.2e} m, jacobian {:.2e}, gravity {:.2e} N·m, inertia {:.2e} kg·m²", worst[0], worst[1], worst[2], worst[3]);
     assert!(worst.iter().all(|&w| w < 1e-7), "{worst:?}");
+}
+
+/// The products the cycle takes from a kinematics evaluation (its own Q2.30
+/// entries, no clamp) are exactly the general `mul_unit` products of the
+/// `Fx` Jacobian and rotation, over the whole joint range and beyond it,
+/// for factors of every scale (clamped ones included).
+#[test]
+fn kinematics_products_equal_the_general_ones() {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+    let factor = |rng: &mut rand::rngs::StdRng| {
+        let scale = rng.gen_range(-40..30);
+        let raw: i64 = rng.gen_range(-(1i64 << 40)..(1i64 << 40));
+        Fx(if scale >= 0 {
+            raw.saturating_mul(1 << scale.min(62))
+        } else {
+            raw >> (-scale).min(63)
+        })
+    };
+    for n in 0..20_000 {
+        let mut q = [Fx::ZERO; 6];
+        for (i, v) in q.iter_mut().enumerate() {
+            // Inside the limits, and up to 10 rad outside them.
+            let (lo, hi) = if n % 4 == 0 {
+                (-10.0, 10.0)
+            } else {
+                (arm::Q_MIN[i].to_f64(), arm::Q_MAX[i].to_f64())
+            };
+            *v = Fx::from_f64(rng.gen_range(lo..hi));
+        }
+        let parts = if n % 2 == 0 {
+            arm::Parts::SIMULATOR
+        } else {
+            arm::Parts::STATE_MODEL
+        };
+        let k = arm::kinematics_with(&q, parts);
+        let w = Wrench {
+            force: Vec3::new(factor(&mut rng), factor(&mut rng), factor(&mut rng)),
+            torque: Vec3::new(factor(&mut rng), factor(&mut rng), factor(&mut rng)),
+        };
+        let qd = [(); 6].map(|_| factor(&mut rng));
+        let (j, r) = (k.jacobian(), k.handle_rot());
+        assert_eq!(
+            k.jacobian_transpose_mul(&w),
+            arm::jacobian_transpose_mul(&j, &w)
+        );
+        assert_eq!(k.jacobian_mul(&qd), arm::jacobian_mul(&j, &qd));
+        assert_eq!(k.rot_mul(w.force), r.mul_vec_unit(w.force));
+        assert_eq!(k.rot_tmul(w.torque), r.tmul_vec_unit(w.torque));
+        for c in j
+            .iter()
+            .flat_map(|t| t.to_array())
+            .chain(r.r.iter().flat_map(|v| v.to_array()))
+        {
+            assert!(c.abs() < Fx::TWO, "entry {c:?} at {q:?}");
+        }
+    }
 }
 
 #[test]
