@@ -393,6 +393,13 @@ const WEIGHT: [Fx; 3] = [
     MASS[2].mul_sat(GRAVITY).neg_sat(),
 ];
 
+/// [`WEIGHT`] as product factors.
+const WEIGHT_FACTOR: [UnitFactor; 3] = [
+    UnitFactor::new(WEIGHT[0]),
+    UnitFactor::new(WEIGHT[1]),
+    UnitFactor::new(WEIGHT[2]),
+];
+
 /// Forward kinematics, Jacobian, gravity torques and diagonal inertia.
 pub fn kinematics(q: &Joints) -> Kinematics {
     kinematics_with(q, Parts::ALL)
@@ -472,7 +479,7 @@ pub fn kinematics_with(q: &Joints, parts: Parts) -> Kinematics {
         let mut moment_of_inertia: Q = 0;
         for (((c, w), m), lj) in com
             .iter()
-            .zip(WEIGHT.iter())
+            .zip(WEIGHT_FACTOR.iter())
             .zip(MASS.iter())
             .zip(last_joint.iter())
         {
@@ -480,7 +487,12 @@ pub fn kinematics_with(q: &Joints, parts: Parts) -> Kinematics {
                 // z·(r × (0, 0, w)) = w·(z_x·r_y − z_y·r_x)
                 let r = c.sub(*pi);
                 let lever = qm(zi.x, r.y).wrapping_sub(qm(zi.y, r.x));
-                *g = g.add_sat(w.mul_unit(fx_of(lever)));
+                // `w.mul_unit(fx_of(lever))` with the weight split at
+                // compile time: |lever| ≤ 1.14·2^30 (a lever arm of this
+                // arm) is the factor mul_unit takes, unclamped, and
+                // |w·lever| < 12 N·m cannot saturate: the same value, and
+                // so is the plain sum of three such torques.
+                *g = Fx(g.0.wrapping_add(w.mul30(lever)));
                 if parts.inertia {
                     // squared distance to the axis: |r|² − (r·z)²
                     let a = r.dot(*zi);

@@ -192,6 +192,12 @@ impl Fx {
         Fx(self.0.saturating_mul(n))
     }
 
+    /// `self / 2` toward −∞: exactly `self.mul_sat(Fx::HALF)` (one partial
+    /// product, `⌊x·2^31 / 2^32⌋`, which never saturates) as one shift.
+    pub const fn half(self) -> Fx {
+        Fx(self.0 >> 1)
+    }
+
     /// Fixed-point product, saturating, truncated toward −∞.
     pub const fn mul_sat(self, o: Fx) -> Fx {
         let a = self.0;
@@ -796,6 +802,11 @@ impl Vec3 {
             return self;
         }
         Vec3::new(self.x.mul_sat(k), self.y.mul_sat(k), self.z.mul_sat(k))
+    }
+
+    /// Every component halved: exactly `self.scale(Fx::HALF)`.
+    pub const fn half(self) -> Vec3 {
+        Vec3::new(self.x.half(), self.y.half(), self.z.half())
     }
 
     pub const fn dot(self, o: Vec3) -> Fx {
