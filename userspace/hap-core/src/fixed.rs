@@ -795,12 +795,19 @@ impl Vec3 {
         Vec3::new(self.x.neg_sat(), self.y.neg_sat(), self.z.neg_sat())
     }
 
+    /// The test is inlined at the caller, the products are not.
+    #[inline(always)]
     pub const fn scale(self, k: Fx) -> Vec3 {
         // `x.mul_sat(ONE)` is `x` for every x (one partial product, exact):
         // the speed, force and envelope factors are mostly 1.
         if k.0 == Fx::ONE.0 {
             return self;
         }
+        self.scale_products(k)
+    }
+
+    #[inline(never)]
+    const fn scale_products(self, k: Fx) -> Vec3 {
         Vec3::new(self.x.mul_sat(k), self.y.mul_sat(k), self.z.mul_sat(k))
     }
 
@@ -1130,6 +1137,8 @@ impl Quat {
     }
 
     /// Hamilton product `self ⊗ o`.
+    /// The tests are inlined at the caller, the products are not.
+    #[inline(always)]
     pub const fn mul(&self, o: &Quat) -> Quat {
         // The identity on either side: the product below gives the other
         // factor bit for bit; skip its 16 products (the base frame and the
@@ -1140,6 +1149,11 @@ impl Quat {
         if o.is_identity() {
             return *self;
         }
+        self.mul_products(o)
+    }
+
+    #[inline(never)]
+    const fn mul_products(&self, o: &Quat) -> Quat {
         let a = self.vec();
         let b = o.vec();
         let w = self.w.mul_sat(o.w).sub_sat(a.dot(b));
@@ -1184,12 +1198,19 @@ impl Quat {
     }
 
     /// Rotate a vector: `q v q*` (Rodrigues form, 2 cross products).
+    /// The test is inlined at the caller, the products are not.
+    #[inline(always)]
     pub const fn rotate(&self, v: Vec3) -> Vec3 {
         // No vector part: the products below are 0 and `v` comes out bit
         // for bit, whatever `w`; skip them.
         if self.x.0 == 0 && self.y.0 == 0 && self.z.0 == 0 {
             return v;
         }
+        self.rotate_products(v)
+    }
+
+    #[inline(never)]
+    const fn rotate_products(&self, v: Vec3) -> Vec3 {
         let u = self.vec();
         let t = u.cross(v).scale(Fx::TWO);
         v.add(t.scale(self.w)).add(u.cross(t))
