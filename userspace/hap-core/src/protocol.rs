@@ -721,15 +721,11 @@ pub fn encode(h: &FrameHeader, frame: &Frame, out: &mut [u8; MAX_FRAME_LEN]) -> 
     for (d, w) in body.chunks_exact_mut(4).zip(words.iter()) {
         d.copy_from_slice(&w.to_be_bytes());
     }
-    match out.get_mut(..len) {
-        Some(f) => {
-            if seal_crc(f) {
-                len
-            } else {
-                0
-            }
-        }
-        None => 0,
+    let sealed = out.get_mut(..len).is_some_and(seal_crc);
+    if sealed {
+        len
+    } else {
+        0
     }
 }
 
