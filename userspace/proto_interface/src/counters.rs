@@ -41,6 +41,15 @@ pub struct Counters {
     pub sessions_opened: AtomicU64,
     pub sessions_closed: AtomicU64,
     pub sessions_expired: AtomicU64,
+    /// The SERVER thread left SCHED_FIFO for SCHED_OTHER: a budget window
+    /// in which it used more than its share of the CPU (`rtbudget`).
+    pub rt_demotions: AtomicU64,
+    /// ... and came back to SCHED_FIFO after a window within its share.
+    pub rt_restores: AtomicU64,
+    /// A change of policy the kernel refused.
+    pub rt_policy_errors: AtomicU64,
+    /// 1 while the SERVER thread runs demoted (SCHED_OTHER).
+    pub server_demoted: AtomicU64,
 }
 
 impl Counters {
@@ -92,6 +101,10 @@ impl Counters {
         row("sessions_opened", l(&self.sessions_opened));
         row("sessions_closed", l(&self.sessions_closed));
         row("sessions_expired", l(&self.sessions_expired));
+        row("rt_demotions", l(&self.rt_demotions));
+        row("rt_restores", l(&self.rt_restores));
+        row("rt_policy_errors", l(&self.rt_policy_errors));
+        row("server_demoted", l(&self.server_demoted));
         match client {
             Some(c) => {
                 let _ = writeln!(s, "client: {c}");

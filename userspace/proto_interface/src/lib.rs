@@ -23,10 +23,12 @@ pub mod counters;
 pub mod frames;
 pub mod privdrop;
 pub mod ratelimit;
+pub mod rtbudget;
 pub mod session;
 
 use hap_auth::{Action, Gate, Kind, Psk, Refusal};
 use ratelimit::RateLimit;
+use rtbudget::RtBudget;
 
 use std::fs::{File, OpenOptions};
 use std::io::{ErrorKind, Read, Write};
@@ -59,6 +61,12 @@ pub struct Config {
     /// Refused datagrams per second and source address before that source is
     /// dropped unexamined (0: no limit).
     pub refusal_budget: u32,
+    /// The SCHED_FIFO priority the process was given (`--rt-priority`), so
+    /// that the SERVER thread can return to it; `None`: SCHED_OTHER.
+    pub rt_priority: Option<i32>,
+    /// Share of a CPU, in percent, the SERVER thread may use at its
+    /// real-time priority (`rtbudget`); 100: never demoted.
+    pub rt_budget_percent: u32,
 }
 
 /// State shared by the threads and the main thread.
@@ -97,7 +105,7 @@ impl Shared {
 
 /// Run the calling process's threads (this one and those it starts later,
 /// which inherit it) under `SCHED_FIFO` at `priority` (1..=99), below the
-/// module's kernel tasks (SERVO 80, CLOCK 99) when `priority` < 80: under a
+/// module's kernel tasks (SERVO 80, CLOCK 90) when `priority` < 80: under a
 /// heavy userspace load a SCHED_OTHER bridge only gets its fair share of the
 /// CPU and the link's latency grows with the load. Needs CAP_SYS_NICE.
 pub fn set_fifo_priority(priority: i32) -> std::io::Result<()> {
@@ -260,6 +268,17 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
     let mut limit = RateLimit::new(cfg.refusal_budget);
     let mut refusal_log = [None; Refusal::COUNT];
     let mut insecure_log: Option<Instant> = None;
+    let mut budget = cfg.rt_priority.map(|p| {
+        (
+            p,
+            RtBudget::new(
+                cfg.rt_budget_percent,
+                Instant::now(),
+                rtbudget::thread_cpu_time(),
+            ),
+        )
+    });
+    let mut budget_log: Option<Instant> = None;
 
     loop {
         if shared.stop.load(Ordering::SeqCst) {
@@ -280,6 +299,13 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
                         eprintln!("proto_interface: cannot write {}: {e}", path.display());
                         stats_warned = true;
                     }
+                }
+            }
+        }
+        if let Some((prio, b)) = budget.as_mut() {
+            if b.window_ended(now) {
+                if let Some(s) = b.end_window(now, rtbudget::thread_cpu_time()) {
+                    apply_switch(b, s, *prio, shared, &mut budget_log, now);
                 }
             }
         }
@@ -357,6 +383,59 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
     }
     if let Some(path) = &cfg.stats_file {
         let _ = write_stats_file(path, &shared.render());
+    }
+}
+
+/// Apply the real-time budget's decision to the calling (SERVER) thread;
+/// count it, and log it at most once every 10 s.
+fn apply_switch(
+    b: &mut RtBudget,
+    s: rtbudget::Switch,
+    prio: i32,
+    shared: &Shared,
+    log: &mut Option<Instant>,
+    now: Instant,
+) {
+    match rtbudget::set_policy(s.to, prio) {
+        Ok(()) => {
+            b.applied(s);
+            let demoted = s.to == rtbudget::Policy::Other;
+            shared
+                .counters
+                .server_demoted
+                .store(u64::from(demoted), Ordering::Relaxed);
+            Counters::inc(if demoted {
+                &shared.counters.rt_demotions
+            } else {
+                &shared.counters.rt_restores
+            });
+            if log.is_none_or(|t| now.duration_since(t) >= Duration::from_secs(10)) {
+                *log = Some(now);
+                eprintln!(
+                    "proto_interface: SERVER thread used {} us of CPU in {} us; {} \
+                     ({} demotions so far)",
+                    s.used.as_micros(),
+                    s.window.as_micros(),
+                    if demoted {
+                        "over its real-time budget: SCHED_OTHER until a window within it"
+                            .to_string()
+                    } else {
+                        format!("within its budget again: SCHED_FIFO {prio}")
+                    },
+                    shared.counters.rt_demotions.load(Ordering::Relaxed)
+                );
+            }
+        }
+        Err(e) => {
+            Counters::inc(&shared.counters.rt_policy_errors);
+            if log.is_none_or(|t| now.duration_since(t) >= Duration::from_secs(10)) {
+                *log = Some(now);
+                eprintln!(
+                    "proto_interface: cannot set the SERVER thread to {:?}: {e}",
+                    s.to
+                );
+            }
+        }
     }
 }
 

@@ -62,6 +62,13 @@ struct Args {
     /// session's client address is never limited.
     #[arg(long, default_value_t = 1000)]
     refusal_budget: u32,
+    /// With --rt-priority: the share of one CPU, in percent, the receiving
+    /// thread may use at that priority over a 100 ms window; a window above
+    /// it runs the thread as SCHED_OTHER until a window within it (a flood
+    /// of forged datagrams, each verified, must not hold the CPU above the
+    /// kernel's SCHED_OTHER tasks). 100: never demoted.
+    #[arg(long, default_value_t = 25, value_parser = clap::value_parser!(u32).range(1..=100))]
+    rt_budget: u32,
 }
 
 fn main() -> ExitCode {
@@ -79,6 +86,8 @@ fn main() -> ExitCode {
         stats_interval: Duration::from_secs(1),
         key: None,
         refusal_budget: args.refusal_budget,
+        rt_priority: args.rt_priority,
+        rt_budget_percent: args.rt_budget,
     };
     let mut cfg = cfg;
     match &args.key {
