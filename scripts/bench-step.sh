@@ -7,8 +7,10 @@
 #     controller alone (the full cycle less the simulated arm:
 #     Simulator::measures and Simulator::simulate_arm, their kinematics
 #     included); and the per-function split (inclusive Ir per cycle of the
-#     calls into each function). Mode: host native, valgrind instruction
-#     count (deterministic).
+#     calls into each function). At a servo period of 1 ms (the module's
+#     default) and of 100 us (its floor): the simulated arm integrates in
+#     sub-steps of at most 500 us, 2 at 1 ms, 1 at 100 us. Mode: host
+#     native, valgrind instruction count (deterministic).
 # (b) `cargo bench -p hap-core --bench servo_step`: ns per servo step, host
 #     native wall clock (depends on the host and its load).
 # (c) unless --no-rt: the same cycle in a SCHED_FIFO 80 loop (absolute
@@ -82,35 +84,39 @@ bin="$ROOT/userspace/target/release/examples/servo_steps"
 echo "# hapticctrl bench-step on $(uname -r), $(nproc) CPU(s), $(date -u +%FT%TZ)"
 echo "## (a) host native, callgrind instruction count"
 if command -v valgrind >/dev/null; then
+  for cg_period in 1000 100; do
+  echo "### servo period ${cg_period} us"
   declare -A ir
   for k in 1000 2000; do
-    valgrind --tool=callgrind --callgrind-out-file="$out/step-$stamp/callgrind.servo_steps.$k" "$bin" "$k" \
-      > /dev/null 2> "$out/step-$stamp/callgrind.$k.err"
-    ir[$k]=$(sed -n 's/.*Collected : \([0-9]*\).*/\1/p' "$out/step-$stamp/callgrind.$k.err")
+    valgrind --tool=callgrind --callgrind-out-file="$out/step-$stamp/callgrind.servo_steps.$cg_period.$k" "$bin" "$k" "$cg_period" \
+      > /dev/null 2> "$out/step-$stamp/callgrind.$cg_period.$k.err"
+    ir[$k]=$(sed -n 's/.*Collected : \([0-9]*\).*/\1/p' "$out/step-$stamp/callgrind.$cg_period.$k.err")
   done
   echo "Ir(K=1000) = ${ir[1000]}, Ir(K=2000) = ${ir[2000]}"
   full=$(( (ir[2000] - ir[1000]) / 1000 ))
-  echo "instructions per servo cycle [host native, callgrind]: $full"
+  echo "instructions per servo cycle at ${cg_period} us [host native, callgrind]: $full"
   # Inclusive Ir per cycle of the calls into the functions matching $1.
   per_cycle() {
     local a b
-    a=$(callgrind_calls "$out/step-$stamp/callgrind.servo_steps.1000" "$1")
-    b=$(callgrind_calls "$out/step-$stamp/callgrind.servo_steps.2000" "$1")
+    a=$(callgrind_calls "$out/step-$stamp/callgrind.servo_steps.$cg_period.1000" "$1")
+    b=$(callgrind_calls "$out/step-$stamp/callgrind.servo_steps.$cg_period.2000" "$1")
     echo $(( (b - a) / 1000 ))
   }
   sim=$(per_cycle 'hap_core::simulator::Simulator::(measures|simulate_arm)$')
-  echo "instructions per cycle, controller alone (full cycle less the simulated arm) [host native, callgrind]: $(( full - sim ))"
-  echo "instructions per cycle, simulated arm (measures + simulate_arm) [host native, callgrind]: $sim"
-  echo "per-function split, inclusive instructions per cycle [host native, callgrind]:"
+  echo "instructions per cycle at ${cg_period} us, controller alone (full cycle less the simulated arm) [host native, callgrind]: $(( full - sim ))"
+  echo "instructions per cycle at ${cg_period} us, simulated arm (measures + simulate_arm) [host native, callgrind]: $sim"
+  echo "per-function split at ${cg_period} us, inclusive instructions per cycle [host native, callgrind]:"
   for f in 'hap_core::servo::Servo::step$' 'hap_core::simulator::Simulator::measures$' \
            'hap_core::simulator::Simulator::simulate_arm$' 'hap_core::arm::kinematics' \
            'hap_core::state_model::build_physical_state$' 'hap_core::control::cartesian_control$' \
-           'hap_core::fixed::Fx::sin_cos$' 'hap_core::fixed::Quat::from_mat3$' \
+           'hap_core::control::spring_energy$' 'hap_core::arm::Kinematics::jacobian_transpose_mul$' \
+           'hap_core::fixed::Fx::sin_cos_unit$' 'hap_core::fixed::Quat::from_mat3$' \
            'hap_core::proto_synchro::Synchro::receive_vp$' 'hap_core::protocol::encode$' \
            'hap_core::simulator::LogRecord::encode$'; do
     printf '  %-50s %6d\n' "$(echo "$f" | sed 's/^hap_core:://; s/\$$//')" "$(per_cycle "$f")"
   done
-  echo "(callgrind_annotate $out/step-$stamp/callgrind.servo_steps.2000 | head -40 for the self cost)"
+  echo "(callgrind_annotate $out/step-$stamp/callgrind.servo_steps.$cg_period.2000 | head -40 for the self cost)"
+  done
 else
   echo "valgrind not installed (apt-get install -y valgrind): skipped"
 fi

@@ -1,10 +1,13 @@
 //! Driver for the per-step cost figures of `scripts/bench-step.sh`.
 //!
-//! * `servo_steps K` runs K full SERVO cycles (`hap_core::cycle::ServoCycle`:
-//!   synchronizer, servo step, answer encoding, log record) with a scripted
-//!   effort and a VPr coupled to the arm's own VP. Run it under
-//!   `valgrind --tool=callgrind` for K = 1000 and 2000: the Ir difference
-//!   divided by 1000 is the instruction count of one cycle (setup cancels).
+//! * `servo_steps K [PERIOD_US]` runs K full SERVO cycles
+//!   (`hap_core::cycle::ServoCycle`: synchronizer, servo step, answer
+//!   encoding, log record) at a servo period of PERIOD_US (default 1000)
+//!   with a scripted effort and a VPr coupled to the arm's own VP. Run it
+//!   under `valgrind --tool=callgrind` for K = 1000 and 2000: the Ir
+//!   difference divided by 1000 is the instruction count of one cycle (setup
+//!   cancels). The period matters: the simulated arm integrates in
+//!   sub-steps of at most 500 µs (`simulator::substeps`).
 //! * `servo_steps rt SECONDS PERIOD_US` runs the same cycle in a periodic
 //!   loop (absolute `clock_nanosleep` on CLOCK_MONOTONIC) and prints the
 //!   wake-up latency and the cycle time, like cyclictest. Start it under
@@ -229,7 +232,8 @@ fn main() {
         }
         other => {
             let k: u32 = other.and_then(|a| a.parse().ok()).unwrap_or(1000);
-            let mut s = Script::new(1000);
+            let period = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(1000);
+            let mut s = Script::new(period);
             for _ in 0..k {
                 s.step(PowerRequest::None);
             }

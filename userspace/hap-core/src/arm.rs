@@ -161,29 +161,120 @@ pub const WORK_Q: Joints = [
 ];
 
 /// Everything computed from one joint configuration.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+///
+/// The rotation and the Jacobian are kept as the Q2.30 raws the kinematics
+/// computes them in (`handle_rot()` and `jacobian()` give them as `Fx`,
+/// exactly: each entry is the raw times 4). Every entry is below 2 in
+/// magnitude (rotation entries ≤ 1; a Jacobian column is a unit axis `z`
+/// and `z × r` with `|r| ≤ 1.13 m`; plus rounding of a few 2^-30), so a raw
+/// is within ±2^31: exactly the factor [`Fx::mul_unit`] would take from the
+/// `Fx` entry, and the products below are `mul_unit`'s without its clamp.
+#[derive(Clone, Copy, PartialEq, Eq)]
 pub struct Kinematics {
     /// Handle pose in the arm base frame.
     pub handle: Pose,
-    /// Handle rotation matrix (R1…R6).
-    pub handle_rot: Mat3,
-    /// Geometric Jacobian columns: column i is the handle twist for q̇_i = 1
-    /// (linear velocity of the handle point, angular velocity), base frame.
-    pub jacobian: [Twist; 6],
+    /// Handle rotation matrix (R1…R6), Q2.30 raws, column by column.
+    rot30: [[i64; 3]; 3],
+    /// Geometric Jacobian, Q2.30 raws: column i is the handle twist for
+    /// q̇_i = 1 (linear velocity of the handle point x, y, z, angular
+    /// velocity x, y, z), base frame.
+    jac30: [[i64; 6]; 6],
     /// Gravity torque on each joint (what gravity does; compensation is −this), N·m.
     pub gravity: Joints,
     /// Diagonal joint inertia, kg·m².
     pub inertia: Joints,
 }
 
+/// The same text as a derived `Debug` of the fields `handle`, `handle_rot`,
+/// `jacobian`, `gravity`, `inertia`.
+impl core::fmt::Debug for Kinematics {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Kinematics")
+            .field("handle", &self.handle)
+            .field("handle_rot", &self.handle_rot())
+            .field("jacobian", &self.jacobian())
+            .field("gravity", &self.gravity)
+            .field("inertia", &self.inertia)
+            .finish()
+    }
+}
+
+const fn q3_fx(c: [i64; 3]) -> Vec3 {
+    Vec3::new(fx_of(c[0]), fx_of(c[1]), fx_of(c[2]))
+}
+
 impl Kinematics {
     pub const ZERO: Kinematics = Kinematics {
         handle: Pose::IDENTITY,
-        handle_rot: Mat3::IDENTITY,
-        jacobian: [Twist::ZERO; 6],
+        rot30: [[1 << 30, 0, 0], [0, 1 << 30, 0], [0, 0, 1 << 30]],
+        jac30: [[0; 6]; 6],
         gravity: [Fx::ZERO; 6],
         inertia: ROTOR_INERTIA,
     };
+
+    /// Handle rotation matrix (R1…R6).
+    pub const fn handle_rot(&self) -> Mat3 {
+        let [x, y, z] = self.rot30;
+        Mat3::from_cols(q3_fx(x), q3_fx(y), q3_fx(z))
+    }
+
+    /// Geometric Jacobian columns: column i is the handle twist for q̇_i = 1
+    /// (linear velocity of the handle point, angular velocity), base frame.
+    pub fn jacobian(&self) -> [Twist; 6] {
+        self.jac30.map(|c| Twist::from_array(c.map(fx_of)))
+    }
+
+    /// `J · q̇`: exactly [`jacobian_mul`]`(&self.jacobian(), qd)`.
+    pub fn jacobian_mul(&self, qd: &Joints) -> Twist {
+        let mut t = [0i64; 6];
+        for (col, v) in self.jac30.iter().zip(qd.iter()) {
+            let f = UnitFactor::new(*v);
+            for (o, u) in t.iter_mut().zip(col.iter()) {
+                *o = o.wrapping_add(f.mul30(*u));
+            }
+        }
+        Twist::from_array(t.map(Fx))
+    }
+
+    /// `Jᵀ · w`: exactly [`jacobian_transpose_mul`]`(&self.jacobian(), w)`.
+    pub fn jacobian_transpose_mul(&self, w: &Wrench) -> Joints {
+        let f = w.to_array().map(UnitFactor::new);
+        let mut tau = [Fx::ZERO; 6];
+        for (t, col) in tau.iter_mut().zip(self.jac30.iter()) {
+            let mut s = 0i64;
+            for (fi, u) in f.iter().zip(col.iter()) {
+                s = s.wrapping_add(fi.mul30(*u));
+            }
+            *t = Fx(s);
+        }
+        tau
+    }
+
+    /// `R · v` for the handle rotation: exactly `handle_rot().mul_vec_unit(v)`.
+    pub fn rot_mul(&self, v: Vec3) -> Vec3 {
+        let f = v.to_array().map(UnitFactor::new);
+        let mut r = [0i64; 3];
+        for (fj, col) in f.iter().zip(self.rot30.iter()) {
+            for (o, u) in r.iter_mut().zip(col.iter()) {
+                *o = o.wrapping_add(fj.mul30(*u));
+            }
+        }
+        Vec3::from_array(r.map(Fx))
+    }
+
+    /// `Rᵀ · v`: exactly `handle_rot().tmul_vec_unit(v)`.
+    pub fn rot_tmul(&self, v: Vec3) -> Vec3 {
+        let f = v.to_array().map(UnitFactor::new);
+        let mut r = [Fx::ZERO; 3];
+        for (o, col) in r.iter_mut().zip(self.rot30.iter()) {
+            let mut s = 0i64;
+            for (fj, u) in f.iter().zip(col.iter()) {
+                s = s.wrapping_add(fj.mul30(*u));
+            }
+            *o = Fx(s);
+        }
+        Vec3::from_array(r)
+    }
 }
 
 /// Which optional parts [`kinematics_with`] computes; a part left out keeps
@@ -302,6 +393,13 @@ const WEIGHT: [Fx; 3] = [
     MASS[2].mul_sat(GRAVITY).neg_sat(),
 ];
 
+/// [`WEIGHT`] as product factors.
+const WEIGHT_FACTOR: [UnitFactor; 3] = [
+    UnitFactor::new(WEIGHT[0]),
+    UnitFactor::new(WEIGHT[1]),
+    UnitFactor::new(WEIGHT[2]),
+];
+
 /// Forward kinematics, Jacobian, gravity torques and diagonal inertia.
 pub fn kinematics(q: &Joints) -> Kinematics {
     kinematics_with(q, Parts::ALL)
@@ -354,12 +452,10 @@ pub fn kinematics_with(q: &Joints, parts: Parts) -> Kinematics {
     let z = [Q3::new(0, 0, 1 << 30), y1, y1, x123, y4, x5];
     let p = [Q3::ZERO, p_s, p_e, p_w, p_w, p_w];
 
-    let mut jacobian = [Twist::ZERO; 6];
-    for ((col, zi), pi) in jacobian.iter_mut().zip(z.iter()).zip(p.iter()) {
-        *col = Twist {
-            linear: zi.cross(p_h.sub(*pi)).fx(),
-            angular: zi.fx(),
-        };
+    let mut jac30 = [[0i64; 6]; 6];
+    for ((col, zi), pi) in jac30.iter_mut().zip(z.iter()).zip(p.iter()) {
+        let lin = zi.cross(p_h.sub(*pi));
+        *col = [lin.x, lin.y, lin.z, zi.x, zi.y, zi.z];
     }
 
     // Centres of mass and the joints each body is distal to.
@@ -383,7 +479,7 @@ pub fn kinematics_with(q: &Joints, parts: Parts) -> Kinematics {
         let mut moment_of_inertia: Q = 0;
         for (((c, w), m), lj) in com
             .iter()
-            .zip(WEIGHT.iter())
+            .zip(WEIGHT_FACTOR.iter())
             .zip(MASS.iter())
             .zip(last_joint.iter())
         {
@@ -391,7 +487,12 @@ pub fn kinematics_with(q: &Joints, parts: Parts) -> Kinematics {
                 // z·(r × (0, 0, w)) = w·(z_x·r_y − z_y·r_x)
                 let r = c.sub(*pi);
                 let lever = qm(zi.x, r.y).wrapping_sub(qm(zi.y, r.x));
-                *g = g.add_sat(w.mul_unit(fx_of(lever)));
+                // `w.mul_unit(fx_of(lever))` with the weight split at
+                // compile time: |lever| ≤ 1.14·2^30 (a lever arm of this
+                // arm) is the factor mul_unit takes, unclamped, and
+                // |w·lever| < 12 N·m cannot saturate: the same value, and
+                // so is the plain sum of three such torques.
+                *g = Fx(g.0.wrapping_add(w.mul30(lever)));
                 if parts.inertia {
                     // squared distance to the axis: |r|² − (r·z)²
                     let a = r.dot(*zi);
@@ -403,18 +504,18 @@ pub fn kinematics_with(q: &Joints, parts: Parts) -> Kinematics {
         *inn = inn.add_sat(fx_of(moment_of_inertia));
     }
 
-    let handle_rot = Mat3::from_cols(x5.fx(), y6.fx(), z6.fx());
+    let rot30 = [[x5.x, x5.y, x5.z], [y6.x, y6.y, y6.z], [z6.x, z6.y, z6.z]];
     Kinematics {
         handle: Pose {
             position: p_h.fx(),
             orientation: if parts.orientation {
-                Quat::from_mat3(&handle_rot)
+                Quat::from_mat3(&Mat3::from_cols(x5.fx(), y6.fx(), z6.fx()))
             } else {
                 Quat::IDENTITY
             },
         },
-        handle_rot,
-        jacobian,
+        rot30,
+        jac30,
         gravity,
         inertia,
     }

@@ -371,9 +371,9 @@ fn spring_energy(g: &Gains, d: Vec3, e: Vec3) -> Fx {
         // F_max·(|d| − F_max/(2K))
         MAX_FORCE.mul_sat(dn.sub_sat(MAX_FORCE.div_sat(g.k_lin.mul_sat(Fx::TWO))))
     } else {
-        kd.mul_sat(dn).mul_sat(Fx::HALF)
+        kd.mul_sat(dn).half()
     };
-    let rot = g.k_rot.mul_sat(e.norm_sq()).mul_sat(Fx::HALF);
+    let rot = g.k_rot.mul_sat(e.norm_sq()).half();
     lin.add_sat(rot)
 }
 
@@ -621,8 +621,8 @@ pub fn cartesian_control(
                 Fx::TWO,
             ));
             let pw = ctrl.prev_wrench;
-            let avg_f = pw.force.add(w_step.force).scale(Fx::HALF);
-            let avg_t = pw.torque.add(w_step.torque).scale(Fx::HALF);
+            let avg_f = pw.force.add(w_step.force).half();
+            let avg_t = pw.torque.add(w_step.torque).half();
             let mut de = avg_f.dot(dp_t).add_sat(avg_t.dot(dth_t));
             for ((q, q0), t) in
                 ps.q.iter()
@@ -743,7 +743,7 @@ pub fn cartesian_control(
     // gain ≤ 1 on the coupling, which the observer sees). A joint over its
     // brake speed must not be driven along its motion: then the whole
     // coupling vector is 0 this cycle.
-    let tau_c = arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench);
+    let tau_c = kin.jacobian_transpose_mul(&handle_wrench);
     let mut s = Fx::ONE;
     for (((tc, tf), lim), (qd, o)) in tau_c
         .iter()
@@ -759,7 +759,7 @@ pub fn cartesian_control(
     let tau_c = if s < Fx::ONE {
         alarms |= alarm::TORQUE_SATURATED;
         handle_wrench = handle_wrench.scale(s);
-        arm::jacobian_transpose_mul(&kin.jacobian, &handle_wrench)
+        kin.jacobian_transpose_mul(&handle_wrench)
     } else {
         // The wrench is unchanged: so are its joint torques.
         tau_c

@@ -192,6 +192,12 @@ impl Fx {
         Fx(self.0.saturating_mul(n))
     }
 
+    /// `self / 2` toward −∞: exactly `self.mul_sat(Fx::HALF)` (one partial
+    /// product, `⌊x·2^31 / 2^32⌋`, which never saturates) as one shift.
+    pub const fn half(self) -> Fx {
+        Fx(self.0 >> 1)
+    }
+
     /// Fixed-point product, saturating, truncated toward −∞.
     pub const fn mul_sat(self, o: Fx) -> Fx {
         let a = self.0;
@@ -712,13 +718,26 @@ impl UnitFactor {
 
     /// Raw Q32.32 of `x · u`; `u` as in [`Fx::mul_unit`] (Q2.30, clamped to ±2).
     pub(crate) const fn mul(self, u: Fx) -> i64 {
-        let mut u30 = u.0 >> 2;
-        if u30 > (1 << 31) {
-            u30 = 1 << 31;
-        } else if u30 < -(1 << 31) {
-            u30 = -(1 << 31);
-        }
+        self.mul30(unit30(u))
+    }
+
+    /// [`UnitFactor::mul`] with the factor already taken by [`unit30`]
+    /// (`|u30| ≤ 2^31`): the same value.
+    pub(crate) const fn mul30(self, u30: i64) -> i64 {
         (u30.wrapping_mul(self.h) << 2).wrapping_add(u30.wrapping_mul(self.l) >> 30)
+    }
+}
+
+/// `u` as [`Fx::mul_unit`] and [`UnitFactor::mul`] take it: Q2.30 (the two
+/// lowest raw bits dropped), clamped to ±2^31 (±2).
+pub(crate) const fn unit30(u: Fx) -> i64 {
+    let u30 = u.0 >> 2;
+    if u30 > (1 << 31) {
+        1 << 31
+    } else if u30 < -(1 << 31) {
+        -(1 << 31)
+    } else {
+        u30
     }
 }
 
@@ -776,13 +795,25 @@ impl Vec3 {
         Vec3::new(self.x.neg_sat(), self.y.neg_sat(), self.z.neg_sat())
     }
 
+    /// The test is inlined at the caller, the products are not.
+    #[inline(always)]
     pub const fn scale(self, k: Fx) -> Vec3 {
         // `x.mul_sat(ONE)` is `x` for every x (one partial product, exact):
         // the speed, force and envelope factors are mostly 1.
         if k.0 == Fx::ONE.0 {
             return self;
         }
+        self.scale_products(k)
+    }
+
+    #[inline(never)]
+    const fn scale_products(self, k: Fx) -> Vec3 {
         Vec3::new(self.x.mul_sat(k), self.y.mul_sat(k), self.z.mul_sat(k))
+    }
+
+    /// Every component halved: exactly `self.scale(Fx::HALF)`.
+    pub const fn half(self) -> Vec3 {
+        Vec3::new(self.x.half(), self.y.half(), self.z.half())
     }
 
     pub const fn dot(self, o: Vec3) -> Fx {
@@ -1106,6 +1137,8 @@ impl Quat {
     }
 
     /// Hamilton product `self ⊗ o`.
+    /// The tests are inlined at the caller, the products are not.
+    #[inline(always)]
     pub const fn mul(&self, o: &Quat) -> Quat {
         // The identity on either side: the product below gives the other
         // factor bit for bit; skip its 16 products (the base frame and the
@@ -1116,6 +1149,11 @@ impl Quat {
         if o.is_identity() {
             return *self;
         }
+        self.mul_products(o)
+    }
+
+    #[inline(never)]
+    const fn mul_products(&self, o: &Quat) -> Quat {
         let a = self.vec();
         let b = o.vec();
         let w = self.w.mul_sat(o.w).sub_sat(a.dot(b));
@@ -1160,12 +1198,19 @@ impl Quat {
     }
 
     /// Rotate a vector: `q v q*` (Rodrigues form, 2 cross products).
+    /// The test is inlined at the caller, the products are not.
+    #[inline(always)]
     pub const fn rotate(&self, v: Vec3) -> Vec3 {
         // No vector part: the products below are 0 and `v` comes out bit
         // for bit, whatever `w`; skip them.
         if self.x.0 == 0 && self.y.0 == 0 && self.z.0 == 0 {
             return v;
         }
+        self.rotate_products(v)
+    }
+
+    #[inline(never)]
+    const fn rotate_products(&self, v: Vec3) -> Vec3 {
         let u = self.vec();
         let t = u.cross(v).scale(Fx::TWO);
         v.add(t.scale(self.w)).add(u.cross(t))

@@ -2,13 +2,14 @@
 //! position-log record it produces each cycle.
 //!
 //! One call integrates the joint dynamics of [`super::arm`] over one servo
-//! period with `SUBSTEPS` semi-implicit Euler sub-steps:
+//! period with [`substeps`]`(period)` semi-implicit Euler sub-steps (no
+//! longer than [`MAX_SUBSTEP_NS`]):
 //!
 //! ```text
 //! τ = Jᵀ·w_user + τ_gravity                                       (once per period)
 //!     + τ_motor (the motor line, read now: 0 unless enabled and powered)
 //!     − b·q̇ − fc·sat(q̇/0.01) + τ_stop(q, q̇)                      (every sub-step)
-//! q̇ ← q̇ + dt·τ / I(q)      q ← q + dt·q̇                           (dt = period / SUBSTEPS)
+//! q̇ ← q̇ + dt·τ / I(q)      q ← q + dt·q̇                           (dt = period / n)   
 //! ```
 //!
 //! Kinematics, gravity, inertia and the Jacobian are evaluated once per period
@@ -29,8 +30,32 @@ use super::effort::EffortSample;
 use super::fixed::{Fx, Joints, Vec3, Wrench, JOINTS_ZERO};
 use super::io::{Gate, MotorLine};
 
-/// Integration sub-steps per servo period.
-pub const SUBSTEPS: u32 = 4;
+/// Longest integration sub-step, ns. Semi-implicit Euler at this step is
+/// far inside its stability region for every joint of [`super::arm`]: the
+/// stiffest stop (`STOP_STIFFNESS / I`, joint 6: 20 / 0.001) gives
+/// `ω·dt = 141 rad/s · 0.5 ms = 0.07` (stable below 2), and the strongest
+/// damping, Coulomb friction in its linear band plus viscous and stop damping
+/// (joint 6: (0.3 + 0.03 + 0.3) N·m·s/rad / 0.001 kg·m²), gives
+/// `b·dt/I = 0.32`: below 1, so no sub-step overshoots (a joint never
+/// reverses under its own damping within a step).
+pub const MAX_SUBSTEP_NS: u32 = 500_000;
+
+/// Largest sub-step count (a 32 ms period).
+pub const MAX_SUBSTEPS: u32 = 64;
+
+/// Integration sub-steps for a servo period of `period_ns`: the fewest with
+/// sub-steps no longer than [`MAX_SUBSTEP_NS`] (1 at 100 µs to 500 µs, 2 at
+/// 1 ms, 20 at 10 ms), at least 1, at most [`MAX_SUBSTEPS`].
+pub const fn substeps(period_ns: u32) -> u32 {
+    let n = period_ns.div_ceil(MAX_SUBSTEP_NS);
+    if n < 1 {
+        1
+    } else if n > MAX_SUBSTEPS {
+        MAX_SUBSTEPS
+    } else {
+        n
+    }
+}
 
 /// What the hardware returns (hap_io `get_measures`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -63,6 +88,8 @@ pub struct Simulator {
     /// The motor line was cut by the fail-safe during the last period.
     line_cut: bool,
     period: Fx,
+    /// [`substeps`] of the period.
+    substeps: u32,
     user: EffortSample,
     kin: Kinematics,
     kin_valid: bool,
@@ -78,6 +105,7 @@ impl Simulator {
             applied: JOINTS_ZERO,
             line_cut: false,
             period: Fx::from_ns(period_ns as u64),
+            substeps: substeps(period_ns),
             user: EffortSample::NONE,
             kin: Kinematics::ZERO,
             kin_valid: false,
@@ -135,14 +163,15 @@ impl Simulator {
     #[inline(never)]
     pub fn measures(&mut self, line: &MotorLine) -> Measures {
         let user = self.user;
-        let rot = self.kinematics().handle_rot;
+        let kin = self.kinematics();
+        let force_sensor = Wrench {
+            force: kin.rot_tmul(user.wrench.force),
+            torque: kin.rot_tmul(user.wrench.torque),
+        };
         Measures {
             encoders: self.q.map(arm::encoder_counts),
             joint_speeds: self.qd,
-            force_sensor: Wrench {
-                force: rot.tmul_vec_unit(user.wrench.force),
-                torque: rot.tmul_vec_unit(user.wrench.torque),
-            },
+            force_sensor,
             power_on: line.supply_on(),
             dead_man: user.dead_man,
             buttons: user.buttons,
@@ -155,59 +184,68 @@ impl Simulator {
     #[allow(clippy::needless_range_loop)]
     #[inline(never)]
     pub fn simulate_arm(&mut self, line: &MotorLine) {
-        let dt = Fx(self.period.0 / SUBSTEPS as i64);
+        // `substeps` is 1..=MAX_SUBSTEPS (the fallback cannot be taken).
+        let dt = Fx(self
+            .period
+            .0
+            .checked_div(i64::from(self.substeps))
+            .unwrap_or(self.period.0));
         let wrench = self.user.wrench;
         let mut base = JOINTS_ZERO;
         let mut dt_over_i = JOINTS_ZERO;
         {
             // Borrowed, not copied: only the Jacobian, gravity and inertia.
             let kin = self.kinematics();
-            let user_tau = arm::jacobian_transpose_mul(&kin.jacobian, &wrench);
+            let user_tau = kin.jacobian_transpose_mul(&wrench);
             for i in 0..6 {
                 base[i] = user_tau[i].add_sat(kin.gravity[i]);
                 dt_over_i[i] = dt.div_sat(kin.inertia[i]);
             }
         }
-        let coulomb_gain = COULOMB_GAIN;
+        // Per joint and period: whether the sum below can skip its
+        // saturation checks as far as the once-per-period torque goes.
+        let base_small = base.map(|b| within(b, 1 << 45));
         let mut limit = false;
         let mut cut = false;
-        for _ in 0..SUBSTEPS {
+        for _ in 0..self.substeps {
             // The motors apply what the line lets through, now.
             let motor = line.applied();
             cut |= line.gate() == Gate::FailSafe;
             self.applied = motor;
             for i in 0..6 {
                 let (q, qd) = (self.q[i], self.qd[i]);
-                let mut tau =
-                    if within(qd, 1 << 40) && within(base[i], 1 << 45) && within(motor[i], 1 << 45)
-                    {
-                        // No sum below can saturate (|base + motor| < 2^46,
-                        // |b·q̇| < 2^42 raw, |fc·sat| ≤ 2^33): plain sums, the
-                        // same result as the saturating ones. q̇·100 clamped to
-                        // ±1 by comparing q̇ with ⌈2^32/100⌉ raw (the product
-                        // below it cannot overflow).
-                        let sat = if qd.0 >= COULOMB_KNEE {
-                            Fx::ONE
-                        } else if qd.0 <= -COULOMB_KNEE {
-                            Fx::ONE.neg_sat()
-                        } else {
-                            Fx(qd.0.wrapping_mul(coulomb_gain))
-                        };
-                        Fx(base[i]
-                            .0
-                            .wrapping_add(motor[i].0)
-                            .wrapping_sub(qd.mul_unit(arm::DAMPING[i]).0)
-                            .wrapping_sub(sat.mul_unit(arm::COULOMB[i]).0))
+                let mut tau = if within(qd, 1 << 40) && base_small[i] && within(motor[i], 1 << 45) {
+                    // No sum below can saturate (|base + motor| < 2^46,
+                    // |b·q̇| < 2^42 raw, |fc·sat| ≤ 2^33): plain sums, the
+                    // same result as the saturating ones. q̇·100 clamped to
+                    // ±1 by comparing q̇ with ⌈2^32/100⌉ raw (the product
+                    // below it cannot overflow). The damping and friction
+                    // products are `mul_unit`'s with the constant's Q2.30
+                    // factor taken once (`DAMPING_Q30`, `COULOMB_Q30`) and
+                    // no saturation (|q̇|, |sat| < 2^8: the high partial
+                    // product is below 2^40): the same values.
+                    let sat = if qd.0 >= COULOMB_KNEE {
+                        Fx::ONE.0
+                    } else if qd.0 <= -COULOMB_KNEE {
+                        -Fx::ONE.0
                     } else {
-                        base[i]
-                            .add_sat(motor[i])
-                            .sub_sat(qd.mul_unit(arm::DAMPING[i]))
-                            .sub_sat(
-                                qd.mul_int(coulomb_gain)
-                                    .clamp_abs(Fx::ONE)
-                                    .mul_unit(arm::COULOMB[i]),
-                            )
+                        qd.0.wrapping_mul(COULOMB_GAIN)
                     };
+                    Fx(base[i]
+                        .0
+                        .wrapping_add(motor[i].0)
+                        .wrapping_sub(mul_q30(qd.0, DAMPING_Q30[i]))
+                        .wrapping_sub(mul_q30(sat, COULOMB_Q30[i])))
+                } else {
+                    base[i]
+                        .add_sat(motor[i])
+                        .sub_sat(qd.mul_unit(arm::DAMPING[i]))
+                        .sub_sat(
+                            qd.mul_int(COULOMB_GAIN)
+                                .clamp_abs(Fx::ONE)
+                                .mul_unit(arm::COULOMB[i]),
+                        )
+                };
                 if q > arm::Q_MAX[i] {
                     limit = true;
                     let t = arm::STOP_STIFFNESS[i]
@@ -237,6 +275,49 @@ const COULOMB_GAIN: i64 = 100;
 
 /// The smallest raw q̇ with `q̇ · COULOMB_GAIN ≥ 1` (⌈2^32 / 100⌉).
 const COULOMB_KNEE: i64 = (Fx::ONE.0 + COULOMB_GAIN - 1) / COULOMB_GAIN;
+
+/// `u`'s factor as [`Fx::mul_unit`] takes it: Q2.30, clamped to ±2.
+const fn q30_of(u: Fx) -> i64 {
+    let u30 = u.0 >> 2;
+    if u30 > (1 << 31) {
+        1 << 31
+    } else if u30 < -(1 << 31) {
+        -(1 << 31)
+    } else {
+        u30
+    }
+}
+
+/// `arm::DAMPING` and `arm::COULOMB` as `mul_unit` factors.
+const DAMPING_Q30: [i64; 6] = {
+    let d = arm::DAMPING;
+    [
+        q30_of(d[0]),
+        q30_of(d[1]),
+        q30_of(d[2]),
+        q30_of(d[3]),
+        q30_of(d[4]),
+        q30_of(d[5]),
+    ]
+};
+const COULOMB_Q30: [i64; 6] = {
+    let c = arm::COULOMB;
+    [
+        q30_of(c[0]),
+        q30_of(c[1]),
+        q30_of(c[2]),
+        q30_of(c[3]),
+        q30_of(c[4]),
+        q30_of(c[5]),
+    ]
+};
+
+/// Raw `x.mul_unit(u)` for `u30 = q30_of(u)` and `|x| < 2^40` raw: then
+/// `|u30·⌊x/2^32⌋| < 2^39`, so none of `mul_unit`'s saturations can act and
+/// the wrapping operations are exact: the same value.
+const fn mul_q30(x: i64, u30: i64) -> i64 {
+    (u30.wrapping_mul(x >> 32) << 2).wrapping_add(u30.wrapping_mul(x & 0xFFFF_FFFF) >> 30)
+}
 
 /// `|x| < lim` raw.
 const fn within(x: Fx, lim: i64) -> bool {

@@ -103,10 +103,10 @@ pub struct PhysicalState {
 pub fn build_physical_state(m: &Measures) -> PhysicalState {
     let q = m.encoders.map(arm::encoder_angle);
     let kin = arm::kinematics_with(&q, arm::Parts::STATE_MODEL);
-    let twist = arm::jacobian_mul(&kin.jacobian, &m.joint_speeds);
+    let twist = kin.jacobian_mul(&m.joint_speeds);
     let wrench = Wrench {
-        force: kin.handle_rot.mul_vec_unit(m.force_sensor.force),
-        torque: kin.handle_rot.mul_vec_unit(m.force_sensor.torque),
+        force: kin.rot_mul(m.force_sensor.force),
+        torque: kin.rot_mul(m.force_sensor.torque),
     };
     PhysicalState {
         q,

@@ -54,6 +54,11 @@ const fn shr_round_even(v: u64, sh: u32) -> u64 {
 /// Every `Fx` is finite and below 2^31 in magnitude, so the result is
 /// always a normal finite float (saturation to the largest finite float is
 /// kept as a guard but cannot trigger).
+///
+/// The magnitude is normalised (its top bit moved to bit 63): the 24 bits
+/// from bit 63 down are the significand, the 40 below it decide the
+/// rounding (half is bit 39). For a magnitude of 24 bits or fewer those 40
+/// bits are 0 and the significand is the magnitude shifted up, exactly.
 pub const fn fx_to_f32_bits(x: Fx) -> u32 {
     let v = x.0;
     if v == 0 {
@@ -61,13 +66,15 @@ pub const fn fx_to_f32_bits(x: Fx) -> u32 {
     }
     let sign: u32 = if v < 0 { 0x8000_0000 } else { 0 };
     let mag: u64 = v.unsigned_abs();
+    let lz = mag.leading_zeros();
     // Index of the most significant set bit, 0..=63.
-    let mut p = 63 - mag.leading_zeros() as i32;
-    let mut mant: u64 = if p > 23 {
-        shr_round_even(mag, (p - 23) as u32)
-    } else {
-        mag << ((23 - p) as u32)
-    };
+    let mut p = 63 - lz as i32;
+    let norm = mag << lz;
+    let mut mant = norm >> 40;
+    let rest = norm & ((1u64 << 40) - 1);
+    if rest > (1u64 << 39) || (rest == (1u64 << 39) && (mant & 1) == 1) {
+        mant += 1;
+    }
     if mant >= (1u64 << 24) {
         mant >>= 1;
         p += 1;
@@ -299,6 +306,74 @@ impl<'a> Decoder<'a> {
 
 #[cfg(test)]
 mod tests {
+    /// The conversion as it was written first (a shift by the exponent and
+    /// `shr_round_even`), to check the normalised one against.
+    const fn fx_to_f32_bits_by_shift(x: Fx) -> u32 {
+        let v = x.0;
+        if v == 0 {
+            return 0;
+        }
+        let sign: u32 = if v < 0 { 0x8000_0000 } else { 0 };
+        let mag: u64 = v.unsigned_abs();
+        let mut p = 63 - mag.leading_zeros() as i32;
+        let mut mant: u64 = if p > 23 {
+            shr_round_even(mag, (p - 23) as u32)
+        } else {
+            mag << ((23 - p) as u32)
+        };
+        if mant >= (1u64 << 24) {
+            mant >>= 1;
+            p += 1;
+        }
+        let biased = p - FRAC + 127;
+        if biased >= 255 {
+            return sign | 0x7F7F_FFFF;
+        }
+        if biased <= 0 {
+            return sign;
+        }
+        sign | ((biased as u32) << 23) | ((mant as u32) & 0x007F_FFFF)
+    }
+
+    #[test]
+    fn normalised_conversion_equals_the_shifting_one() {
+        // Every bit length, ties (…1 1000…0 and …0 1000…0 below the
+        // significand), carries into the next power of 2, random values.
+        let mut vals = vec![i64::MIN, i64::MAX, i64::MIN + 1, 1, -1];
+        for k in 0..63 {
+            let b = 1i64 << k;
+            for d in [-1i64, 0, 1] {
+                vals.push(b.wrapping_add(d));
+                vals.push(b.wrapping_add(d).wrapping_neg());
+            }
+            if k >= 25 {
+                let half = 1i64 << (k - 24);
+                for m in [0x80_0000i64, 0x80_0001, 0xFF_FFFF, 0xAB_CDEF] {
+                    let base = m << (k - 23);
+                    for d in [-1, 0, 1] {
+                        vals.push(base + half + d);
+                        vals.push(-(base + half + d));
+                    }
+                }
+            }
+        }
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        for _ in 0..1_000_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let sh = (x >> 58) as u32;
+            vals.push((x as i64) >> sh);
+        }
+        for v in vals {
+            assert_eq!(
+                fx_to_f32_bits(Fx(v)),
+                fx_to_f32_bits_by_shift(Fx(v)),
+                "{v:#x}"
+            );
+        }
+    }
+
     use super::*;
 
     const LSB: f64 = 1.0 / 4294967296.0; // 2^-32

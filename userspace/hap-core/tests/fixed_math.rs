@@ -507,3 +507,30 @@ fn sqrt_is_the_floor_root() {
         assert_eq!(s, exact << ((32 - k) / 2), "sqrt raw {raw}");
     }
 }
+
+/// `half()` is `mul_sat(Fx::HALF)` for every value: the ends of the range,
+/// odd raws of both signs, random raws of every scale.
+#[test]
+fn half_is_the_product_by_one_half() {
+    let mut r = rng();
+    let mut vals = vec![
+        i64::MIN,
+        i64::MIN + 1,
+        i64::MAX,
+        i64::MAX - 1,
+        -1,
+        0,
+        1,
+        3,
+        -3,
+    ];
+    for _ in 0..1_000_000 {
+        let sh = r.gen_range(0..64);
+        vals.push(r.gen::<i64>() >> sh);
+    }
+    for v in vals {
+        assert_eq!(Fx(v).half(), Fx(v).mul_sat(Fx::HALF), "{v:#x}");
+        let w = Vec3::new(Fx(v), Fx(v.wrapping_neg()), Fx(v >> 7));
+        assert_eq!(w.half(), w.scale(Fx::HALF));
+    }
+}

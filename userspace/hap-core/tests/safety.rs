@@ -30,8 +30,8 @@ fn relative_eigenvalue(q: &Joints, g: &Gains, te: f64) -> f64 {
     let mut jv = Matrix3x6::zeros();
     let mut jw = Matrix3x6::zeros();
     for i in 0..6 {
-        let l = kin.jacobian[i].linear.to_f64();
-        let a = kin.jacobian[i].angular.to_f64();
+        let l = kin.jacobian()[i].linear.to_f64();
+        let a = kin.jacobian()[i].angular.to_f64();
         for k in 0..3 {
             jv[(k, i)] = l[k];
             jw[(k, i)] = a[k];

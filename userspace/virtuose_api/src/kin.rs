@@ -415,7 +415,7 @@ pub fn joint_speeds(q: &[f64; 6], twist: &[f32; 6]) -> [f64; 6] {
     let k = arm::kinematics(&qj);
     // j[r][c]: row r of the twist (v, w), column c = joint c
     let mut j = [[0.0f64; 6]; 6];
-    for (c, col) in k.jacobian.iter().enumerate() {
+    for (c, col) in k.jacobian().iter().enumerate() {
         let l = col.linear.to_f64();
         let a = col.angular.to_f64();
         for r in 0..3 {
@@ -575,7 +575,7 @@ mod tests {
             }
             let k = arm::kinematics(&qj);
             let mut v = [0f32; 6];
-            for (c, col) in k.jacobian.iter().enumerate() {
+            for (c, col) in k.jacobian().iter().enumerate() {
                 let l = col.linear.to_f64();
                 let a = col.angular.to_f64();
                 for r in 0..3 {

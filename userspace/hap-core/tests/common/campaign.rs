@@ -525,7 +525,7 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         // checks at the motors.
         // The controller's kinematics: at the encoder angles.
         let kin_m = arm::kinematics(&log.q);
-        let jt = arm::jacobian_transpose_mul(&kin_m.jacobian, &out.handle_wrench);
+        let jt = arm::jacobian_transpose_mul(&kin_m.jacobian(), &out.handle_wrench);
         let env = f(out.envelope);
         let hw_force = norm(v3(out.handle_wrench.force));
         if enabled {
@@ -609,11 +609,11 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         }
         // Speed.
         let qd = log.qd;
-        let tw = arm::jacobian_mul(&kin.jacobian, &qd);
+        let tw = arm::jacobian_mul(&kin.jacobian(), &qd);
         let _ = tw;
         let new_kin = arm::kinematics(&c.servo.simulator().q);
         let v = norm(v3(arm::jacobian_mul(
-            &new_kin.jacobian,
+            &new_kin.jacobian(),
             &c.servo.simulator().qd,
         )
         .linear));

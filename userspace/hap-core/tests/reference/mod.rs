@@ -105,7 +105,7 @@ impl RefSim {
     pub fn step(&mut self, motor: &[f64; 6], force: &Vector3<f64>, torque: &Vector3<f64>) {
         let k = kinematics(&self.q);
         let ut = jt_mul(&k, force, torque);
-        let sub = hap_core::simulator::SUBSTEPS as usize;
+        let sub = hap_core::simulator::substeps((self.period * 1e9).round() as u32) as usize;
         let dt = self.period / sub as f64;
         let tau_max = arm::TAU_MAX.map(p);
         let mut base = [0.0; 6];
