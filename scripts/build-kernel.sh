@@ -33,13 +33,19 @@ fi
 
 SRC="$HAP_CACHE/src/linux-source-$HAP_KERNEL_VERSION"
 srcver=$(dpkg-query -W -f='${Version}' "linux-source-$HAP_KERNEL_VERSION")
+# The source tree is shared by the variants (a base and a debug build may
+# run at the same time): unpacked under a lock of its own.
+mkdir -p "$(dirname "$SRC")"
+exec 8>"$SRC.lock"
+flock 8
 if [ ! -f "$SRC/.hap-unpacked-$srcver" ]; then
   log "unpacking linux-source-$HAP_KERNEL_VERSION $srcver"
-  rm -rf "$SRC"; mkdir -p "$(dirname "$SRC")"
+  rm -rf "$SRC"
   tarball=$(ls /usr/src/linux-source-$HAP_KERNEL_VERSION.tar.*)
   tar -C "$(dirname "$SRC")" -xf "$tarball"
   touch "$SRC/.hap-unpacked-$srcver"
 fi
+flock -u 8
 
 MAKEFLAGS_K=(LLVM="$HAP_LLVM" RUSTC="$HAP_RUSTC" BINDGEN="$HAP_TOOLS/bin/bindgen")
 rm -rf "$KDIR"; mkdir -p "$KDIR"
