@@ -27,7 +27,7 @@
 
 use super::arm::{self, Kinematics};
 use super::effort::EffortSample;
-use super::fixed::{Fx, Joints, Vec3, Wrench, JOINTS_ZERO};
+use super::fixed::{unit30, Fx, Joints, Vec3, Wrench, JOINTS_ZERO};
 use super::io::{Gate, MotorLine};
 
 /// Longest integration sub-step, ns. Semi-implicit Euler at this step is
@@ -276,43 +276,31 @@ const COULOMB_GAIN: i64 = 100;
 /// The smallest raw q̇ with `q̇ · COULOMB_GAIN ≥ 1` (⌈2^32 / 100⌉).
 const COULOMB_KNEE: i64 = (Fx::ONE.0 + COULOMB_GAIN - 1) / COULOMB_GAIN;
 
-/// `u`'s factor as [`Fx::mul_unit`] takes it: Q2.30, clamped to ±2.
-const fn q30_of(u: Fx) -> i64 {
-    let u30 = u.0 >> 2;
-    if u30 > (1 << 31) {
-        1 << 31
-    } else if u30 < -(1 << 31) {
-        -(1 << 31)
-    } else {
-        u30
-    }
-}
-
 /// `arm::DAMPING` and `arm::COULOMB` as `mul_unit` factors.
 const DAMPING_Q30: [i64; 6] = {
     let d = arm::DAMPING;
     [
-        q30_of(d[0]),
-        q30_of(d[1]),
-        q30_of(d[2]),
-        q30_of(d[3]),
-        q30_of(d[4]),
-        q30_of(d[5]),
+        unit30(d[0]),
+        unit30(d[1]),
+        unit30(d[2]),
+        unit30(d[3]),
+        unit30(d[4]),
+        unit30(d[5]),
     ]
 };
 const COULOMB_Q30: [i64; 6] = {
     let c = arm::COULOMB;
     [
-        q30_of(c[0]),
-        q30_of(c[1]),
-        q30_of(c[2]),
-        q30_of(c[3]),
-        q30_of(c[4]),
-        q30_of(c[5]),
+        unit30(c[0]),
+        unit30(c[1]),
+        unit30(c[2]),
+        unit30(c[3]),
+        unit30(c[4]),
+        unit30(c[5]),
     ]
 };
 
-/// Raw `x.mul_unit(u)` for `u30 = q30_of(u)` and `|x| < 2^40` raw: then
+/// Raw `x.mul_unit(u)` for `u30 = unit30(u)` and `|x| < 2^40` raw: then
 /// `|u30·⌊x/2^32⌋| < 2^39`, so none of `mul_unit`'s saturations can act and
 /// the wrapping operations are exact: the same value.
 const fn mul_q30(x: i64, u30: i64) -> i64 {
