@@ -324,19 +324,17 @@ fn run(
                 continue;
             }
         }
-        let ack = |seq: &mut u32, session: u16, out: &mut [u8; MAX_FRAME_LEN]| {
-            if h.control & CTRL_ACK_REQUEST != 0 {
-                send(
-                    &Frame::Ack {
-                        acked_type: frame.frame_type(),
-                        acked_seq: h.seq,
-                    },
-                    seq,
-                    session,
-                    src,
-                    out,
-                );
-            }
+        // The reply (and its session id) is sent once the new state is
+        // published in `stats`: a client that got its ack sees the state.
+        let mut reply: Option<(Frame, u16)> = None;
+        let ack = |session: u16| {
+            (h.control & CTRL_ACK_REQUEST != 0).then_some((
+                Frame::Ack {
+                    acked_type: frame.frame_type(),
+                    acked_seq: h.seq,
+                },
+                session,
+            ))
         };
         match frame {
             Frame::OpenSession { client_nonce } => {
@@ -345,31 +343,25 @@ fn run(
                     seq = 0;
                 }
                 client = Some(src);
-                send(
-                    &Frame::SessionAck {
+                reply = Some((
+                    Frame::SessionAck {
                         client_nonce,
                         period_us: cfg.period_us,
                     },
-                    &mut seq,
                     session,
-                    src,
-                    &mut out,
-                );
+                ));
             }
             _ if client.is_none() => {
-                send(
-                    &Frame::Error {
+                reply = Some((
+                    Frame::Error {
                         reason: ERROR_NO_SESSION,
                         rejected_seq: h.seq,
                     },
-                    &mut seq,
                     0,
-                    src,
-                    &mut out,
-                );
+                ));
             }
             Frame::CloseSession => {
-                ack(&mut seq, session, &mut out);
+                reply = ack(session);
                 client = None;
                 attached = false;
                 last_vpr = None;
@@ -377,15 +369,15 @@ fn run(
             Frame::PowerRequest(_) if cfg.ignore_power_requests => {}
             Frame::PowerRequest(on) => {
                 powered = on;
-                ack(&mut seq, session, &mut out);
+                reply = ack(session);
             }
             Frame::AttachVirtualObject(_) => {
                 attached = true;
-                ack(&mut seq, session, &mut out);
+                reply = ack(session);
             }
             Frame::DetachVirtualObject => {
                 attached = false;
-                ack(&mut seq, session, &mut out);
+                reply = ack(session);
             }
             Frame::VprStream { pose, twist } => {
                 last_vpr = Some((pose, twist, h.seq));
@@ -414,14 +406,17 @@ fn run(
                 if let Ok(mut s) = stats.lock() {
                     s.command_type = Some(t as u32);
                 }
-                ack(&mut seq, session, &mut out);
+                reply = ack(session);
             }
-            _ => ack(&mut seq, session, &mut out),
+            _ => reply = ack(session),
         }
         if let Ok(mut s) = stats.lock() {
             s.powered = powered;
             s.attached = attached;
             s.client = client;
+        }
+        if let Some((f, sess)) = reply {
+            send(&f, &mut seq, sess, src, &mut out);
         }
     }
 }
