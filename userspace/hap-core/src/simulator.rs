@@ -276,29 +276,22 @@ const COULOMB_GAIN: i64 = 100;
 /// The smallest raw q̇ with `q̇ · COULOMB_GAIN ≥ 1` (⌈2^32 / 100⌉).
 const COULOMB_KNEE: i64 = (Fx::ONE.0 + COULOMB_GAIN - 1) / COULOMB_GAIN;
 
+/// Six joint factors as `mul_unit` takes them (`unit30` each), at compile time.
+const fn unit30_joints(j: Joints) -> [i64; 6] {
+    let [a, b, c, d, e, f] = j;
+    [
+        unit30(a),
+        unit30(b),
+        unit30(c),
+        unit30(d),
+        unit30(e),
+        unit30(f),
+    ]
+}
+
 /// `arm::DAMPING` and `arm::COULOMB` as `mul_unit` factors.
-const DAMPING_Q30: [i64; 6] = {
-    let d = arm::DAMPING;
-    [
-        unit30(d[0]),
-        unit30(d[1]),
-        unit30(d[2]),
-        unit30(d[3]),
-        unit30(d[4]),
-        unit30(d[5]),
-    ]
-};
-const COULOMB_Q30: [i64; 6] = {
-    let c = arm::COULOMB;
-    [
-        unit30(c[0]),
-        unit30(c[1]),
-        unit30(c[2]),
-        unit30(c[3]),
-        unit30(c[4]),
-        unit30(c[5]),
-    ]
-};
+const DAMPING_Q30: [i64; 6] = unit30_joints(arm::DAMPING);
+const COULOMB_Q30: [i64; 6] = unit30_joints(arm::COULOMB);
 
 /// Raw `x.mul_unit(u)` for `u30 = unit30(u)` and `|x| < 2^40` raw: then
 /// `|u30·⌊x/2^32⌋| < 2^39`, so none of `mul_unit`'s saturations can act and
