@@ -10,12 +10,13 @@
 //! `force_factor` × arm force; torques by `force_factor·speed_factor`).
 //!
 //! Gains are scheduled with the period so that the joint-space passivity
-//! condition `D − (T'/2)(K_t J_vᵀJ_v + K_r J_ωᵀJ_ω) − (B_t J_vᵀJ_v + B_r J_ωᵀJ_ω) ≻ 0`
-//! holds over the workspace at the effective period `T' = 2T` (main and
-//! degraded path alike). The coupling force reaches the motors through an
-//! envelope (soft start, link fade, ramps), a torque-vector scaling that
-//! keeps its direction, and a spring that slips rather than store a force
-//! it could not apply (see `Documentation/control.md`).
+//! condition `D − (T/2)(K_t J_vᵀJ_v + K_r J_ωᵀJ_ω) − (B_t J_vᵀJ_v + B_r J_ωᵀJ_ω) ≻ 0`
+//! holds over the workspace at the nominal period T (main and degraded path
+//! alike), with the exact largest mobility of the arm over its workspace.
+//! The coupling force reaches the motors through an envelope (soft start,
+//! link fade, ramps), a force-first allocation that gives the largest force
+//! the motors can in the commanded direction, and a spring that stays
+//! anchored to its target (see `Documentation/control.md`).
 
 use super::arm::{self, Kinematics};
 use super::config::{CommandType, IndexingMode, ServoConfig};
@@ -23,8 +24,9 @@ use super::fixed::{Fx, Joints, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
 use super::state_model::{LogicalState, PhysicalState};
 use super::vp::{alarm, status, VpReceived};
 
-/// Nominal translational stiffness, N/m (capped by the bound).
-pub const K_LIN_NOMINAL: Fx = Fx::from_int(1500);
+/// Largest translational stiffness offered, N/m (the bound is lower above
+/// 100 µs).
+pub const K_LIN_NOMINAL: Fx = Fx::from_int(8000);
 /// Translational coupling damping, N·s/m.
 pub const B_LIN: Fx = Fx::from_ratio(5, 100);
 /// Nominal rotational stiffness, N·m/rad (capped by the bound).
@@ -32,22 +34,51 @@ pub const K_ROT_NOMINAL: Fx = Fx::from_int(10);
 /// Rotational coupling damping, N·m·s/rad.
 pub const B_ROT: Fx = Fx::from_ratio(5, 10_000);
 /// Fraction of the joint-space bound used by the nominal gains.
-pub const BOUND_MARGIN: Fx = Fx::from_ratio(8, 10);
+pub const BOUND_MARGIN: Fx = Fx::from_ratio(95, 100);
 /// Fraction used by [`Gains::at_bound`] (the stiffest gains offered).
-pub const BOUND_MARGIN_MAX: Fx = Fx::from_ratio(95, 100);
+pub const BOUND_MARGIN_MAX: Fx = Fx::from_ratio(98, 100);
 /// Share of the stiffness budget given to the rotational spring.
-pub const ROT_SHARE: Fx = Fx::from_ratio(1, 4);
+pub const ROT_SHARE: Fx = Fx::from_ratio(1, 16);
+/// Largest `λ_max(J_v D⁻¹ J_vᵀ)` over the workspace, 1/(N·s/m): the arm's
+/// largest mobility at the handle. Sampled maximum 1.376 (f64, 2·10⁵ random
+/// poses plus a local ascent from the 50 largest, `tests/safety.rs`); this
+/// constant is 1.7 % above it. The trace bound `Σ r_i²/b_i` would be 2.40.
+pub const LIN_MOBILITY_MAX: Fx = Fx::from_ratio(140, 100);
+/// Joint speeds beyond which the coupling may no longer drive a joint along
+/// its motion: the coupling's scale falls linearly from 1 at `BRAKE_START`
+/// to 0 at `COUPLING_JOINT_STOP` (`BRAKE_START`·5/4).
+pub const COUPLING_JOINT_STOP_NUM: i64 = 5;
+pub const COUPLING_JOINT_STOP_DEN: i64 = 4;
+/// Handle speed from which the Cartesian brake acts, m/s (free motion below).
+pub const V_BRAKE_ONSET: Fx = Fx::ONE;
+/// Handle speed at which the coupling no longer pushes along the motion,
+/// m/s: its scale falls linearly from 1 at `V_BRAKE_ONSET` to 0 here.
+pub const V_COUPLING_STOP: Fx = Fx::from_ratio(15, 10);
+/// Cartesian brake gain, N·s/m (capped at `½·M_HANDLE_MIN/T`).
+pub const B_BRAKE: Fx = Fx::from_int(40);
+/// Smallest effective mass of the handle along any direction, kg (the
+/// wrist: (I_rotor,5 + m_3 (L3/2)²)/L3² ≈ 0.39 kg; 0.3 with margin): the
+/// sampled brake's `B·T/m ≤ ½` never reverses the handle within a period.
+pub const M_HANDLE_MIN: Fx = Fx::from_ratio(3, 10);
+/// Force-impulse limit: a change of the client's target moves the spring's
+/// anchor by at most what changes its force by this much per millisecond,
+/// N/ms (OpenHaptics' `HD_SOFTWARE_FORCE_IMPULSE_LIMIT` in the same role).
+pub const FORCE_IMPULSE_N_PER_MS: Fx = Fx::from_ratio(15, 10);
+/// The same for the rotational spring, N·m/ms.
+pub const TORQUE_IMPULSE_NM_PER_MS: Fx = Fx::from_ratio(5, 100);
 /// `virtSaturateTorque` thresholds: force N, torque N·m.
 pub const MAX_FORCE: Fx = Fx::from_int(20);
 pub const MAX_TORQUE: Fx = Fx::from_ratio(6, 10);
-/// Joint speeds beyond which the velocity brake acts, rad/s.
+/// Joint speeds beyond which the joint velocity brake acts, rad/s: motor
+/// protection only, far above what a hand does at the handle (the handle's
+/// speed is bounded by the Cartesian brake, `V_BRAKE_ONSET`).
 pub const BRAKE_START: Joints = [
-    Fx::ONE,
-    Fx::ONE,
-    Fx::from_ratio(15, 10),
-    Fx::from_int(8),
-    Fx::from_int(8),
-    Fx::from_int(8),
+    Fx::from_int(4),
+    Fx::from_int(4),
+    Fx::from_int(5),
+    Fx::from_int(20),
+    Fx::from_int(20),
+    Fx::from_int(20),
 ];
 /// Brake gain as a fraction of `I_rotor,i / T` (`B_i·T/I_i ≤ ½`: the sampled
 /// brake never reverses a joint within one period).
@@ -64,13 +95,18 @@ pub const PC_ALPHA_ROT_MAX: Fx = Fx::from_ratio(2, 100);
 pub const RAMP_US: u64 = 50_000;
 
 /// λ_max bound of `J_v D⁻¹ J_vᵀ` over the workspace, 1/(N·s/m):
-/// `Σ r_i²/b_i` (trace bound, `r_i` = `arm::LEVER_MAX`).
+/// [`LIN_MOBILITY_MAX`].
 pub fn lin_mobility_bound() -> Fx {
+    LIN_MOBILITY_MAX
+}
+
+/// The trace bound `Σ r_i²/b_i` of the same (`r_i` = `arm::LEVER_MAX`),
+/// 2.40: kept to show how much the exact maximum gains.
+pub fn lin_mobility_trace_bound() -> Fx {
     let mut a = Fx::ZERO;
     for (b, r) in arm::DAMPING.iter().zip(arm::LEVER_MAX.iter()) {
         a = a.add_sat(r.mul_sat(*r).div_sat(*b));
     }
-    // Round up by a few ulps so the bound stays an upper bound.
     a.add_sat(Fx(64))
 }
 
@@ -88,6 +124,22 @@ pub fn rot_mobility_bound() -> Fx {
         .add_sat(inv(2))
         .add_sat(wrist)
         .add_sat(Fx(64))
+}
+
+/// The period the gains are scheduled at, halved (`T_e/2`): T up to 1 ms,
+/// then rising linearly to 2T at 2 ms and beyond. At long periods the joint
+/// speed varies within a period, and the observer's proven dissipation
+/// (`Σ b_i Δq_i²/T`, Cauchy–Schwarz) falls short of what the dampers take:
+/// measured, the campaign's motor-side ledger went below 0 at 10 ms with
+/// gains at T (seeds 32, 33, 1003), and holds with them at 2T.
+pub fn effective_half_period(period: Fx) -> Fx {
+    let t = period.max(Fx(1));
+    // Compared in the representation periods arrive in (`Fx::from_ns`).
+    let ms = Fx::from_ns(1_000_000);
+    let extra = t.sub_sat(ms).max(Fx::ZERO).min(ms);
+    // T·(1 + (T − 1 ms)/1 ms) for 1 ms ≤ T ≤ 2 ms, 2T beyond.
+    let factor = Fx::ONE.add_sat(extra.div_sat(ms));
+    t.mul_sat(factor).half().max(Fx(1))
 }
 
 /// Coupling gains for one servo period.
@@ -111,11 +163,11 @@ impl Gains {
         b_rot: Fx::ZERO,
     };
 
-    /// Gains using `margin` of the joint-space bound at the effective period
-    /// `2·period` (a missed deadline holds one command for up to 2T, so the
-    /// same gains serve the main and the degraded path):
-    /// `(T·K_t + B_t)·a + (T·K_r + B_r)·c ≤ margin`, `a`, `c` the mobility
-    /// bounds; `K_r` takes `ROT_SHARE` of the stiffness budget.
+    /// Gains using `margin` of the joint-space bound at the nominal period
+    /// T (the same gains on the main and the degraded path; a late cycle is
+    /// the observer's and the passivity controller's, control.md):
+    /// `(T/2·K_t + B_t)·a + (T/2·K_r + B_r)·c ≤ margin`, `a`, `c` the
+    /// mobility bounds; `K_r` takes `ROT_SHARE` of the stiffness budget.
     pub fn scheduled(period: Fx, margin: Fx) -> Gains {
         let a = lin_mobility_bound();
         let c = rot_mobility_bound();
@@ -123,7 +175,7 @@ impl Gains {
             .sub_sat(B_LIN.mul_sat(a))
             .sub_sat(B_ROT.mul_sat(c))
             .max(Fx::ZERO);
-        let t = period.max(Fx(1));
+        let t = effective_half_period(period);
         let k_rot = K_ROT_NOMINAL
             .min(ROT_SHARE.mul_sat(slack).div_sat(t.mul_sat(c)))
             .max(Fx::ZERO);
@@ -158,6 +210,21 @@ impl Gains {
             b_rot: c(self.b_rot, bound.b_rot),
         }
     }
+}
+
+/// Cartesian brake gain for `period`: `min(B_BRAKE, ½·M_HANDLE_MIN/T)`,
+/// N·s/m.
+pub fn cartesian_brake_gain(period: Fx) -> Fx {
+    let t = period.max(Fx(1));
+    B_BRAKE.min(M_HANDLE_MIN.half().div_sat(t))
+}
+
+/// The coupling's scale for a speed `v` between `start` (1) and `stop` (0).
+fn speed_scale(v: Fx, start: Fx, stop: Fx) -> Fx {
+    if v <= start {
+        return Fx::ONE;
+    }
+    ratio_le1(stop.sub_sat(v).max(Fx::ZERO), stop.sub_sat(start))
 }
 
 /// Velocity brake gains for `period`: `B_i = ½·I_rotor,i/T`, N·m·s/rad.
@@ -198,9 +265,22 @@ pub struct Controller {
     prev_k: Gains,
     prev_target: Pose,
     prev_wrench: Wrench,
+    /// The spring's force saturation, N (before the envelope): `MAX_FORCE`,
+    /// or the force the motors could give along the spring when that was
+    /// less (their capacity at the pose). Lowered at once to what was applied;
+    /// raised back no faster than the force ramp, and only with energy the
+    /// observer holds.
+    force_limit: Fx,
     prev_q: Joints,
-    /// The last target (raw arm frame) the envelope ramps down on.
+    /// The spring's anchor (raw arm frame): the client's target, reached
+    /// within the force-impulse limit; held while the envelope ramps down.
     held_target: Pose,
+    /// Largest move of the anchor per cycle as force and torque of the
+    /// spring: `FORCE_IMPULSE_N_PER_MS`·T, `TORQUE_IMPULSE_NM_PER_MS`·T.
+    impulse_force: Fx,
+    impulse_torque: Fx,
+    /// Cartesian brake gain for the period, N·s/m.
+    brake_lin: Fx,
     /// Indexing offset: indexed handle = (offset_pos + p, offset_rot ⊗ q).
     offset_pos: Vec3,
     offset_rot: Quat,
@@ -263,8 +343,12 @@ impl Controller {
             prev_k: Gains::ZERO,
             prev_target: Pose::IDENTITY,
             prev_wrench: Wrench::ZERO,
+            force_limit: MAX_FORCE,
             prev_q: JOINTS_ZERO,
             held_target: Pose::IDENTITY,
+            impulse_force: Fx::ZERO,
+            impulse_torque: Fx::ZERO,
+            brake_lin: Fx::ZERO,
             offset_pos: Vec3::ZERO,
             offset_rot: Quat::IDENTITY,
             indexing: false,
@@ -288,6 +372,10 @@ impl Controller {
             .mul_int(1_000_000)
             .div_sat(Fx::from_int(RAMP_US as i32));
         self.ramp_step = step.max(Fx(1)).min(Fx::ONE);
+        let ms = period.mul_int(1000);
+        self.impulse_force = FORCE_IMPULSE_N_PER_MS.mul_sat(ms);
+        self.impulse_torque = TORQUE_IMPULSE_NM_PER_MS.mul_sat(ms);
+        self.brake_lin = cartesian_brake_gain(period);
     }
 
     pub fn po_energy(&self) -> Fx {
@@ -302,6 +390,11 @@ impl Controller {
     /// envelope ramps down).
     pub fn target(&self) -> Pose {
         self.held_target
+    }
+
+    /// The spring's force saturation, N (before the envelope).
+    pub fn force_limit(&self) -> Fx {
+        self.force_limit
     }
 
     /// The spring's slip (translation m, rotation rad).
@@ -362,14 +455,15 @@ impl Default for Controller {
     }
 }
 
-/// Stored energy of the (saturated) coupling spring for a linear error `d`
-/// and rotational error `e`.
-fn spring_energy(g: &Gains, d: Vec3, e: Vec3) -> Fx {
+/// Stored energy of the coupling spring saturated at `f_max` for a linear
+/// error `d` and rotational error `e`: a function of the stretch, whose
+/// force never exceeds `f_max`, so the motors can give all of it back.
+fn spring_energy(g: &Gains, f_max: Fx, d: Vec3, e: Vec3) -> Fx {
     let dn = d.norm();
     let kd = g.k_lin.mul_sat(dn);
-    let lin = if kd > MAX_FORCE && g.k_lin.0 > 0 {
+    let lin = if kd > f_max && g.k_lin.0 > 0 {
         // F_max·(|d| − F_max/(2K))
-        MAX_FORCE.mul_sat(dn.sub_sat(MAX_FORCE.div_sat(g.k_lin.mul_sat(Fx::TWO))))
+        f_max.mul_sat(dn.sub_sat(f_max.div_sat(g.k_lin.mul_sat(Fx::TWO))))
     } else {
         kd.mul_sat(dn).half()
     };
@@ -529,9 +623,7 @@ pub fn cartesian_control(
     let mut handle_wrench = Wrench::ZERO;
     let mut target = ctrl.held_target;
     // (error, its slipped part) of an active spring; saturation factors.
-    let mut spring: Option<(Vec3, Vec3, Vec3, Vec3)> = None;
-    let mut sat_f = Fx::ONE;
-    let mut sat_t = Fx::ONE;
+    let mut spring: Option<(Vec3, Vec3, Vec3, Vec3, Vec3)> = None;
     let mut spring_wrench = Wrench::ZERO;
     let mut t_v = Vec3::ZERO;
     let mut t_w = Vec3::ZERO;
@@ -548,6 +640,45 @@ pub fn cartesian_control(
             position: t_pos,
             orientation: t_rot,
         };
+        if ctrl.coupled && env_prev.0 > 0 {
+            // Force-impulse limit: the anchor follows the client's target by
+            // at most what changes the spring's force by `impulse_force`
+            // (torque by `impulse_torque`) this cycle. The spring stays a
+            // function of the handle's pose around its anchor; the anchor's
+            // move is the target port's step (observer, below).
+            let a = ctrl.held_target;
+            let step_lin = if g.k_lin.0 > 0 {
+                ctrl.impulse_force.div_sat(g.k_lin)
+            } else {
+                D_CLAMP
+            };
+            let dp = clamp_vec(t_pos.sub(a.position), D_CLAMP)
+                .clamp_norm(step_lin)
+                .0;
+            let step_rot = if g.k_rot.0 > 0 {
+                ctrl.impulse_torque.div_sat(g.k_rot)
+            } else {
+                Fx::TWO
+            };
+            let orientation = if t_rot == a.orientation {
+                t_rot
+            } else {
+                let e = t_rot.error_vector(&a.orientation);
+                let (e, clamped) = e.clamp_norm(step_rot);
+                if clamped {
+                    let h = e.half();
+                    Quat::new(h.x, h.y, h.z, Fx::ONE)
+                        .mul(&a.orientation)
+                        .renormalize()
+                } else {
+                    t_rot
+                }
+            };
+            target = Pose {
+                position: a.position.add(dp),
+                orientation,
+            };
+        }
         ctrl.held_target = target;
     }
     if active {
@@ -562,7 +693,9 @@ pub fn cartesian_control(
         if !ctrl.coupled {
             ctrl.slip = Vec3::ZERO;
             ctrl.slip_rot = Vec3::ZERO;
+            ctrl.force_limit = MAX_FORCE;
         }
+        let f_lim = ctrl.force_limit;
         // The spring acts on the error less its slip (see below).
         let mut d_eff = d.sub(ctrl.slip);
         let mut e_eff = e.sub(ctrl.slip_rot);
@@ -589,7 +722,7 @@ pub fn cartesian_control(
                 force: f,
                 torque: tq,
             }
-            .saturate(MAX_FORCE, MAX_TORQUE);
+            .saturate(f_lim, MAX_TORQUE);
             (w, sat, f, tq)
         };
         let mut sw = spring_at(d_eff, e_eff);
@@ -597,10 +730,13 @@ pub fn cartesian_control(
         // moves: the end of the target port's trapezoid. The step is taken
         // on the spring of the last period (its envelope, its slip); the
         // envelope's change is paid (or slipped, or dissipated) apart.
-        let w_step = sw.0.scale(env_prev);
+        let w_step = Wrench {
+            force: sw.0.force.scale(env_prev),
+            torque: sw.0.torque.scale(env_prev),
+        };
         if !ctrl.coupled {
             // Start of coupling: the observer starts with the spring's energy.
-            ctrl.po_energy = spring_energy(&g, d_eff, e_eff);
+            ctrl.po_energy = spring_energy(&g, f_lim, d_eff, e_eff);
             ctrl.prev_wrench = Wrench::ZERO;
             ctrl.prev_tau_c = JOINTS_ZERO;
         } else {
@@ -644,7 +780,7 @@ pub fn cartesian_control(
             // paid by the observer when it holds it (with this period's
             // energy already in, so what it holds is now), else the anchor
             // slips so that the force stays continuous (g₀/g of the stretch).
-            let v = spring_energy(&g, d_eff, e_eff);
+            let v = spring_energy(&g, f_lim, d_eff, e_eff);
             let cost = v.mul_sat(env.sub_sat(env_prev));
             if ctrl.po_energy.sub_sat(cost) >= v.mul_sat(env) {
                 ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
@@ -657,12 +793,13 @@ pub fn cartesian_control(
                 sw = spring_at(d_eff, e_eff);
             }
         }
-        spring = Some((d, e, d_eff, e_eff));
-        let (mut w, sat, f, tq) = sw;
+        spring = Some((d, e, d_eff, e_eff, sw.0.force));
+        let (mut w, sat, _, _) = sw;
         if sat {
+            // The saturated spring is a function of the handle's pose around
+            // its anchor: it stores V(d) (`spring_energy`) and gives back
+            // exactly that; nothing slips.
             alarms |= alarm::TORQUE_SATURATED;
-            sat_f = ratio_le1(w.force.norm(), f.norm());
-            sat_t = ratio_le1(w.torque.norm(), tq.norm());
         }
         w = w.scale(env);
         spring_wrench = w_step;
@@ -701,7 +838,8 @@ pub fn cartesian_control(
     }
 
     // ---- Fixed torques: gravity compensation, then the joint velocity
-    // brake with the motor torque that is left.
+    // brake (motor protection) and the Cartesian brake with the motor
+    // torque that is left.
     let mut fixed = JOINTS_ZERO;
     if ctrl.gravity_compensation {
         for ((t, gr), lim) in fixed
@@ -712,6 +850,11 @@ pub fn cartesian_control(
             *t = gr.neg_sat().clamp_abs(*lim);
         }
     }
+    // The coupling's scale from the speeds: 1 below the brakes' onsets,
+    // falling linearly to 0 where the coupling may no longer drive a joint
+    // (or the handle) along its motion. Continuous in the speeds, so it
+    // changes the force no faster than the arm's speeds change.
+    let mut speed_s = Fx::ONE;
     let mut over = [false; 6];
     // A bounded index range, not `enumerate()` (its counter is an
     // overflow-checked addition: a panic path in the kernel).
@@ -737,33 +880,92 @@ pub fn cartesian_control(
             };
         }
     }
+    let v_lin = v_h.norm();
+    if v_lin > V_BRAKE_ONSET {
+        alarms |= alarm::VELOCITY_LIMIT;
+        // −B_c (|v| − v_on) v̂, as one vector scaled to the motors' room.
+        let mag = ctrl.brake_lin.mul_sat(v_lin.sub_sat(V_BRAKE_ONSET));
+        let f_b = v_h.scale(mag.div_sat(v_lin)).neg();
+        let brake_tau = kin.jacobian_transpose_mul(&Wrench {
+            force: f_b,
+            torque: Vec3::ZERO,
+        });
+        let mut sb = Fx::ONE;
+        for ((bt, tf), lim) in brake_tau.iter().zip(fixed.iter()).zip(arm::TAU_MAX.iter()) {
+            sb = sb.min(fit_scale(*tf, *bt, *lim));
+        }
+        for (t, bt) in fixed.iter_mut().zip(brake_tau.iter()) {
+            *t = t.add_sat(bt.mul_sat(sb));
+        }
+    }
 
-    // ---- Coupling torques Jᵀ·w, scaled as one vector to fit the motor
-    // limits left by the fixed torques (direction kept: the scaling is a
-    // gain ≤ 1 on the coupling, which the observer sees). A joint over its
-    // brake speed must not be driven along its motion: then the whole
-    // coupling vector is 0 this cycle.
-    let tau_c = kin.jacobian_transpose_mul(&handle_wrench);
-    let mut s = Fx::ONE;
-    for (((tc, tf), lim), (qd, o)) in tau_c
+    // ---- Coupling torques: force first. The force's joint torques J_vᵀf
+    // get the largest scale s_f ≤ 1 the motors' room (left by the fixed
+    // torques) allows, then the torque's J_ωᵀτ the largest s_t that still
+    // fits: the force keeps its direction and gets all the device has; the
+    // torque gets what is left. Both are scaled by the speed scale where the
+    // coupling would drive a fast joint or the handle along its motion.
+    // The spring is not changed by any of this: it stays anchored.
+    if handle_wrench != Wrench::ZERO {
+        for (((qd, o), start), tc) in ps
+            .qd
+            .iter()
+            .zip(over.iter())
+            .zip(BRAKE_START.iter())
+            .zip(kin.jacobian_transpose_mul(&handle_wrench).iter())
+        {
+            if *o && tc.mul_sat(*qd).0 > 0 {
+                let stop = Fx(start
+                    .0
+                    .saturating_mul(COUPLING_JOINT_STOP_NUM)
+                    .wrapping_div(COUPLING_JOINT_STOP_DEN));
+                speed_s = speed_s.min(speed_scale(qd.abs(), *start, stop));
+            }
+        }
+        if v_lin > V_BRAKE_ONSET && handle_wrench.force.dot(v_h).0 > 0 {
+            speed_s = speed_s.min(speed_scale(v_lin, V_BRAKE_ONSET, V_COUPLING_STOP));
+        }
+        if speed_s < Fx::ONE {
+            handle_wrench = handle_wrench.scale(speed_s);
+        }
+    }
+    let tau_f = kin.jacobian_transpose_mul(&Wrench {
+        force: handle_wrench.force,
+        torque: Vec3::ZERO,
+    });
+    let mut s_f = Fx::ONE;
+    for ((tc, tf), lim) in tau_f.iter().zip(fixed.iter()).zip(arm::TAU_MAX.iter()) {
+        s_f = s_f.min(fit_scale(*tf, *tc, *lim));
+    }
+    let tau_t = kin.jacobian_transpose_mul(&Wrench {
+        force: Vec3::ZERO,
+        torque: handle_wrench.torque,
+    });
+    let mut s_t = Fx::ONE;
+    for (((tt, tc), tf), lim) in tau_t
         .iter()
+        .zip(tau_f.iter())
         .zip(fixed.iter())
         .zip(arm::TAU_MAX.iter())
-        .zip(ps.qd.iter().zip(over.iter()))
     {
-        if *o && tc.mul_sat(*qd).0 > 0 {
-            s = Fx::ZERO;
-        }
-        s = s.min(fit_scale(*tf, *tc, *lim));
+        s_t = s_t.min(fit_scale(tf.add_sat(tc.mul_sat(s_f)), *tt, *lim));
     }
-    let tau_c = if s < Fx::ONE {
+    let s = s_f.min(s_t).mul_sat(speed_s);
+    let mut tau_c = JOINTS_ZERO;
+    if s_f < Fx::ONE || s_t < Fx::ONE {
         alarms |= alarm::TORQUE_SATURATED;
-        handle_wrench = handle_wrench.scale(s);
-        kin.jacobian_transpose_mul(&handle_wrench)
+        handle_wrench = Wrench {
+            force: handle_wrench.force.scale(s_f),
+            torque: handle_wrench.torque.scale(s_t),
+        };
+        for ((o, tc), tt) in tau_c.iter_mut().zip(tau_f.iter()).zip(tau_t.iter()) {
+            *o = tc.mul_sat(s_f).add_sat(tt.mul_sat(s_t));
+        }
     } else {
-        // The wrench is unchanged: so are its joint torques.
-        tau_c
-    };
+        for ((o, tc), tt) in tau_c.iter_mut().zip(tau_f.iter()).zip(tau_t.iter()) {
+            *o = tc.add_sat(*tt);
+        }
+    }
     let mut joint_torques = JOINTS_ZERO;
     for (((o, tf), tc), lim) in joint_torques
         .iter_mut()
@@ -771,7 +973,7 @@ pub fn cartesian_control(
         .zip(tau_c.iter())
         .zip(arm::TAU_MAX.iter())
     {
-        // Within the limit up to rounding of the scaled product.
+        // Within the limit up to rounding of the scaled products.
         *o = tf.add_sat(*tc).clamp_abs(*lim);
     }
     if ctrl.coupled {
@@ -785,25 +987,58 @@ pub fn cartesian_control(
             *p = o.sub_sat(*tf);
         }
     }
-    // ---- Slip: a force the spring could not apply (wrench saturation,
-    // torque-vector scaling) is not stored either. The spring's anchor slips
-    // so that the stretch left matches the force applied: its energy drops
-    // (dissipated), so raising the force again later cannot release energy
-    // that never entered. The slip is taken back at the ramp rate only when
-    // the observer holds the energy that costs (the spring's energy stays
-    // covered by the observer's).
-    if let (Some((d, e, d_eff, e_eff)), true) = (spring, ctrl.coupled) {
-        let lf = sat_f.mul_sat(s);
-        let lt = sat_t.mul_sat(s);
-        if lf < Fx::ONE || lt < Fx::ONE {
-            ctrl.slip = d.sub(d_eff.scale(lf));
+    // ---- The spring's saturation follows what the motors gave. When the
+    // motors could not give the spring's force along it (capacity at this
+    // pose), the spring saturates at the force applied from
+    // now on: it stays anchored (the wall is where it was), and beyond its
+    // knee its energy grows by exactly the work the motors absorb, so it
+    // holds nothing they cannot give back. The limit rises back toward
+    // `MAX_FORCE` no faster than the force ramp (0.4 N/ms), and only with
+    // energy the observer holds (the spring's energy stays covered by the
+    // observer's). The rotational spring, which gets the motors' room after
+    // the force, slips instead (its anchor), taken back the same way.
+    // Slip also comes from stiffer gains and an envelope rise the observer
+    // could not pay (above).
+    if let (Some((d, e, d_eff, e_eff, f_spring)), true) = (spring, ctrl.coupled) {
+        // (The speed scale is not a limit of the spring: it only withholds
+        // force along a fast motion, so the spring keeps more energy than
+        // it gives, and comes back as the motion slows.)
+        let lf = s_f;
+        let lt = s_t;
+        if lt < Fx::ONE {
             ctrl.slip_rot = e.sub(e_eff.scale(lt));
-        } else if ctrl.slip != Vec3::ZERO || ctrl.slip_rot != Vec3::ZERO {
-            let keep = Fx::ONE.sub_sat(ctrl.ramp_step);
-            let slip = ctrl.slip.scale(keep);
-            let slip_rot = ctrl.slip_rot.scale(keep);
-            let v_old = spring_energy(&g, d_eff, e_eff);
-            let v_new = spring_energy(&g, d.sub(slip), e.sub(slip_rot));
+        }
+        if lf < Fx::ONE {
+            let applied = f_spring.norm().mul_sat(lf);
+            ctrl.force_limit = ctrl.force_limit.min(applied).max(Fx::ZERO);
+        } else if ctrl.force_limit < MAX_FORCE {
+            let raised = ctrl
+                .force_limit
+                .add_sat(MAX_FORCE.mul_sat(ctrl.ramp_step))
+                .min(MAX_FORCE);
+            let v_old = spring_energy(&g, ctrl.force_limit, d_eff, e_eff);
+            let v_new = spring_energy(&g, raised, d_eff, e_eff);
+            let cost = v_new.sub_sat(v_old).max(Fx::ZERO);
+            if ctrl.po_energy.sub_sat(cost) >= v_new {
+                ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
+                ctrl.force_limit = raised;
+            }
+        }
+        if (ctrl.slip != Vec3::ZERO || ctrl.slip_rot != Vec3::ZERO) && lt >= Fx::ONE {
+            let dl = if g.k_lin.0 > 0 {
+                MAX_FORCE.mul_sat(ctrl.ramp_step).div_sat(g.k_lin)
+            } else {
+                D_CLAMP
+            };
+            let dr = if g.k_rot.0 > 0 {
+                MAX_TORQUE.mul_sat(ctrl.ramp_step).div_sat(g.k_rot)
+            } else {
+                Fx::TWO
+            };
+            let slip = ctrl.slip.sub(ctrl.slip.clamp_norm(dl).0);
+            let slip_rot = ctrl.slip_rot.sub(ctrl.slip_rot.clamp_norm(dr).0);
+            let v_old = spring_energy(&g, ctrl.force_limit, d_eff, e_eff);
+            let v_new = spring_energy(&g, ctrl.force_limit, d.sub(slip), e.sub(slip_rot));
             let cost = v_new.sub_sat(v_old).max(Fx::ZERO);
             if ctrl.po_energy.sub_sat(cost) >= v_new {
                 ctrl.po_energy = ctrl.po_energy.sub_sat(cost);

@@ -91,8 +91,9 @@ fn coupling_to_a_static_object_converges() {
     println!("coupling: force after the 50 ms ramp {first_force:.2} N, after 3 s: distance {d:.2e} m, angle {e:.2e} rad, force {f:.2e} N");
     assert!(first_force > 5.0, "{first_force}");
     assert!(d < 1e-3, "{d}");
-    // K_r = 2.6 N·m/rad at 1 ms (joint-space bound at 2T): slower in rotation.
-    assert!(e < 3e-2, "{e}");
+    // K_r = 1.6 N·m/rad at 1 ms (1/16 of the joint-space budget goes to
+    // the rotational spring): slower in rotation.
+    assert!(e < 5e-2, "{e}");
     assert!(f < 1.0);
 }
 

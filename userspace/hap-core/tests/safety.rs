@@ -59,37 +59,108 @@ fn random_q(rng: &mut rand::rngs::StdRng) -> Joints {
     q
 }
 
+/// `λ_max(J_v D⁻¹ J_vᵀ)` at `q` (f64 reference).
+fn lin_mobility(q: &Joints) -> f64 {
+    let kin = arm::kinematics(q);
+    let mut m = nalgebra::Matrix3::zeros();
+    for i in 0..6 {
+        let l = kin.jacobian()[i].linear.to_f64();
+        let v = nalgebra::Vector3::new(l[0], l[1], l[2]);
+        m += v * v.transpose() / f(arm::DAMPING[i]);
+    }
+    SymmetricEigen::new(m).eigenvalues.max()
+}
+
 #[test]
-fn gain_schedule_is_passive_in_joint_space_at_every_period_and_on_the_degraded_path() {
+fn lin_mobility_max_bounds_the_arm_with_little_slack() {
+    // 2·10⁵ random poses, then a coordinate ascent from the 50 largest:
+    // the constant is above every value found, and within 5 % of the
+    // largest (a tight bound, not the trace bound Σ r²/b = 2.40).
+    let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+    let mut best: Vec<(f64, Joints)> = Vec::new();
+    for _ in 0..200_000 {
+        let q = random_q(&mut rng);
+        best.push((lin_mobility(&q), q));
+        if best.len() > 400 {
+            best.sort_by(|a, b| b.0.partial_cmp(&a.0).unwrap());
+            best.truncate(50);
+        }
+    }
+    best.sort_by(|a, b| b.0.partial_cmp(&a.0).unwrap());
+    best.truncate(50);
+    let mut top: f64 = 0.0;
+    for (mut l, mut q) in best {
+        let mut step = 0.05;
+        while step > 1e-4 {
+            let mut moved = false;
+            for i in 0..6 {
+                for dir in [-1.0, 1.0] {
+                    let mut c = q;
+                    let v = (f(q[i]) + dir * step).clamp(f(arm::Q_MIN[i]), f(arm::Q_MAX[i]));
+                    c[i] = Fx::from_f64(v);
+                    let lc = lin_mobility(&c);
+                    if lc > l {
+                        l = lc;
+                        q = c;
+                        moved = true;
+                    }
+                }
+            }
+            if !moved {
+                step /= 2.0;
+            }
+        }
+        top = top.max(l);
+    }
+    let bound = f(hap_core::control::LIN_MOBILITY_MAX);
+    let trace = f(hap_core::control::lin_mobility_trace_bound());
+    println!(
+        "largest mobility found {top:.4}, bound {bound:.4} (slack {:.1} %), trace bound {trace:.3}",
+        (bound / top - 1.0) * 100.0
+    );
+    assert!(top <= bound, "{top} > {bound}");
+    assert!(top >= bound / 1.05, "slack: {top} vs {bound}");
+}
+
+#[test]
+fn gain_schedule_is_passive_in_joint_space_at_every_period() {
+    // The gains are scheduled at the effective period T_e (T up to 1 ms,
+    // 2T from 2 ms, control.md) and serve the main and the degraded path
+    // alike; the joint-space condition holds at T_e, for the nominal gains
+    // and the stiffest offered.
     let mut rng = rand::rngs::StdRng::seed_from_u64(7);
     let mut worst: f64 = f64::MAX;
     let mut worst_at = (0u32, 0.0);
     let mut report = Vec::new();
-    for &us in &[100u32, 250, 500, 1000, 2000, 3000, 5000, 10_000] {
-        let t = us as f64 * 1e-6;
+    let te_of = |us: u32| {
+        2.0 * f(hap_core::control::effective_half_period(Fx::from_ns(
+            us as u64 * 1000,
+        )))
+    };
+    for &us in &[100u32, 250, 500, 1000, 1500, 2000, 3000, 5000, 10_000] {
         let nominal = Gains::for_period(Fx::from_ns(us as u64 * 1000));
         let bound = Gains::at_bound(Fx::from_ns(us as u64 * 1000));
+        let te = te_of(us);
         let mut w_nom = f64::MAX;
         for _ in 0..2000 {
             let q = random_q(&mut rng);
-            // Main path at T and degraded path at 2T, same gains; the
-            // stiffest gains offered at 2T too.
-            for (g, te) in [(nominal, t), (nominal, 2.0 * t), (bound, 2.0 * t)] {
+            for g in [nominal, bound] {
                 let l = relative_eigenvalue(&q, &g, te);
                 if l < worst {
                     worst = l;
                     worst_at = (us, te);
                 }
-                if g == nominal && te > t {
+                if g == nominal {
                     w_nom = w_nom.min(l);
                 }
             }
         }
         for q in [arm::WORK_Q, arm::REST_Q] {
-            w_nom = w_nom.min(relative_eigenvalue(&q, &nominal, 2.0 * t));
+            w_nom = w_nom.min(relative_eigenvalue(&q, &nominal, te));
         }
         report.push(format!(
-            "{us} µs: K_t {:.0} N/m, K_r {:.2} N·m/rad, min rel. eigenvalue at 2T {:.3}",
+            "{us} µs: T_e {:.0} µs, K_t {:.0} N/m, K_r {:.2} N·m/rad, min rel. eigenvalue at T_e {:.3}",
+            te * 1e6,
             f(nominal.k_lin),
             f(nominal.k_rot),
             w_nom
@@ -105,7 +176,7 @@ fn gain_schedule_is_passive_in_joint_space_at_every_period_and_on_the_degraded_p
         let us = rng.gen_range(100u32..=10_000);
         let g = Gains::at_bound(Fx::from_ns(us as u64 * 1000));
         let q = random_q(&mut rng);
-        let l = relative_eigenvalue(&q, &g, 2.0 * us as f64 * 1e-6);
+        let l = relative_eigenvalue(&q, &g, te_of(us));
         assert!(l > 0.0, "{us} µs: {l}");
     }
 }
@@ -126,7 +197,7 @@ fn absurd_client_gains_stay_inside_the_bound() {
     assert_eq!(g.b_lin, Fx::ZERO);
     let mut rng = rand::rngs::StdRng::seed_from_u64(3);
     for _ in 0..200 {
-        assert!(relative_eigenvalue(&random_q(&mut rng), &g, 2e-3) > 0.0);
+        assert!(relative_eigenvalue(&random_q(&mut rng), &g, 1e-3) > 0.0);
     }
     // VirtMech with an absurd mass and time step only lowers K.
     let line = MotorLine::new();

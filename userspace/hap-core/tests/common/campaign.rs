@@ -7,7 +7,9 @@
 
 use hap_core::arm;
 use hap_core::config::{CommandType, ServoConfig, VirtualObjectParams};
-use hap_core::control::{brake_gains, BRAKE_START, D_CLAMP, MAX_FORCE};
+use hap_core::control::{
+    brake_gains, BRAKE_START, COUPLING_JOINT_STOP_DEN, COUPLING_JOINT_STOP_NUM, D_CLAMP, MAX_FORCE,
+};
 use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Joints, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
@@ -152,8 +154,9 @@ pub fn gravity_bound() -> [f64; 6] {
 /// The proven joint speed bound under the campaign's strongest user effort
 /// (see Documentation/control.md): per joint, with `τ_u` the largest user
 /// torque, `A` the motor torque left after gravity compensation, `B` the
-/// brake gain, `b` the damping:
-/// `ω ≤ max(ω_s + τ_u/(B + b), (τ_u − A)/b)`.
+/// brake gain, `b` the damping, `ω_v` the speed beyond which the coupling
+/// never drives the joint along its motion (`BRAKE_START`·5/4):
+/// `ω ≤ max(ω_v + τ_u/(B + b), (τ_u − A)/b)`.
 pub fn joint_speed_bound(period_ns: u32) -> [f64; 6] {
     let brake = brake_gains(Fx::from_ns(period_ns as u64));
     let gb = gravity_bound();
@@ -164,7 +167,10 @@ pub fn joint_speed_bound(period_ns: u32) -> [f64; 6] {
         let a = (f(arm::TAU_MAX[i]) - gb[i]).max(0.0);
         let b = f(arm::DAMPING[i]);
         let bb = f(brake[i]);
-        let ws = f(BRAKE_START[i]);
+        // Beyond `COUPLING_JOINT_STOP` (5/4 of the brake's start) the
+        // coupling never drives the joint along its motion.
+        let ws =
+            f(BRAKE_START[i]) * COUPLING_JOINT_STOP_NUM as f64 / COUPLING_JOINT_STOP_DEN as f64;
         out[i] = (ws + tu / (bb + b)).max((tu - a) / b) + 1e-3;
     }
     out
