@@ -343,7 +343,7 @@ fn recovery() {
 /// The hand drives the handle at a constant speed (a stiff hand:
 /// 3000 N/m, 60 N·s/m around a point moving at `speed`); returns the mean
 /// force along the motion the hand pushes while moving (after 60 mm).
-fn drag(us: u32, q: &Joints, u: [f64; 3], speed: f64, coupled: bool) -> (f64, f64) {
+fn drag(us: u32, q: &Joints, u: [f64; 3], speed: f64, coupled: bool) -> (f64, u32) {
     let mut rig = Rig::new(us, q, coupled);
     rig.follow = Some(((3e-3 / rig.period_s).round() as usize).max(1));
     let (mut p, mut v, _) = rig.step([0.0; 3]);
@@ -351,7 +351,7 @@ fn drag(us: u32, q: &Joints, u: [f64; 3], speed: f64, coupled: bool) -> (f64, f6
     let (kh, bh) = (3000.0, 60.0);
     let mut acc = 0.0;
     let mut n_acc = 0usize;
-    let mut vmax: f64 = 0.0;
+    let mut alarms = 0u32;
     let travel = 0.12;
     let n_total = (travel / speed / rig.period_s) as usize;
     for n in 0..n_total {
@@ -372,10 +372,10 @@ fn drag(us: u32, q: &Joints, u: [f64; 3], speed: f64, coupled: bool) -> (f64, f6
         if speed * t > 0.06 {
             acc += along;
             n_acc += 1;
-            vmax = vmax.max(norm(v));
+            alarms |= rig.c.servo.vp().alarms;
         }
     }
-    (acc / n_acc.max(1) as f64, vmax)
+    (acc / n_acc.max(1) as f64, alarms)
 }
 
 /// Directions with free travel from each pose: toward the base (radial
@@ -395,18 +395,35 @@ fn drag_table() {
     );
     println!("(the client's object follows the handle every 3 ms; \"off\": coupling off, gravity compensation and brakes only; mean over the last half of 0.12 m)");
     println!();
-    println!("| period | pose | axis | 0.1 m/s (N) | 0.5 m/s (N) | 1 m/s (N) | 0.5 m/s, coupling off (N) |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| period | pose | axis | 0.1 m/s (N) | 0.5 m/s (N) | 1 m/s (N) | 0.5 m/s, coupling off (N) | brakes or stops acting at 0.5 m/s |");
+    println!("|---|---|---|---|---|---|---|---|");
     let mut worst05: f64 = 0.0;
-    for &us in &PERIODS_US {
+    // The bench's hand (3000 N/m, 60 N·s/m) is sampled at the servo
+    // period: at 10 ms it is not a stable hand, so 10 ms is left out.
+    for &us in &PERIODS_US[..3] {
         for (pname, q) in poses() {
             for (aname, u) in free_axes(&q) {
                 let a = drag(us, &q, u, 0.1, true).0;
-                let b = drag(us, &q, u, 0.5, true).0;
+                let (b, al) = drag(us, &q, u, 0.5, true);
                 let c = drag(us, &q, u, 1.0, true).0;
-                let d = drag(us, &q, u, 0.5, false).0;
+                let (d, al_off) = drag(us, &q, u, 0.5, false);
                 worst05 = worst05.max(b.abs()).max(d.abs());
-                println!("| {us} µs | {pname} | {aname} | {a:.2} | {b:.2} | {c:.2} | {d:.2} |");
+                let al = al | al_off;
+                let mut why = Vec::new();
+                if al & hap_core::vp::alarm::VELOCITY_LIMIT != 0 {
+                    why.push("velocity brake");
+                }
+                if al & hap_core::vp::alarm::JOINT_LIMIT != 0 {
+                    why.push("joint stop");
+                }
+                let why = if why.is_empty() {
+                    "none".to_string()
+                } else {
+                    why.join(", ")
+                };
+                println!(
+                    "| {us} µs | {pname} | {aname} | {a:.2} | {b:.2} | {c:.2} | {d:.2} | {why} |"
+                );
             }
         }
     }

@@ -64,6 +64,10 @@ pub const M_HANDLE_MIN: Fx = Fx::from_ratio(3, 10);
 /// anchor by at most what changes its force by this much per millisecond,
 /// N/ms (OpenHaptics' `HD_SOFTWARE_FORCE_IMPULSE_LIMIT` in the same role).
 pub const FORCE_IMPULSE_N_PER_MS: Fx = Fx::from_ratio(15, 10);
+/// The anchor may always move this fast, m/s (the speed up to which the
+/// coupling drives the handle, `V_COUPLING_STOP`): an object moving at a
+/// hand's speed is followed as it moves; only its jumps are spread.
+pub const V_ANCHOR_MAX: Fx = V_COUPLING_STOP;
 /// The same for the rotational spring, N·m/ms.
 pub const TORQUE_IMPULSE_NM_PER_MS: Fx = Fx::from_ratio(5, 100);
 /// `virtSaturateTorque` thresholds: force N, torque N·m.
@@ -219,6 +223,19 @@ pub fn cartesian_brake_gain(period: Fx) -> Fx {
     B_BRAKE.min(M_HANDLE_MIN.half().div_sat(t))
 }
 
+/// The slip is taken back once every this many cycles.
+const TAKEBACK_EVERY: u32 = 4;
+
+/// Cycles the force limit holds after it was lowered: 5 ms worth
+/// (`RAMP_US`/10), from the ramp step `T/RAMP_US`.
+fn limit_hold_cycles(ramp_step: Fx) -> u32 {
+    // 1/(10·ramp_step), at least 1.
+    let n = Fx::ONE
+        .div_sat(ramp_step.mul_int(10).max(Fx(1)))
+        .floor_to_i64();
+    u32::try_from(n).unwrap_or(1).max(1)
+}
+
 /// The coupling's scale for a speed `v` between `start` (1) and `stop` (0).
 fn speed_scale(v: Fx, start: Fx, stop: Fx) -> Fx {
     if v <= start {
@@ -271,6 +288,13 @@ pub struct Controller {
     /// raised back no faster than the force ramp, and only with energy the
     /// observer holds.
     force_limit: Fx,
+    /// Cycles left before the force limit may rise again after it was
+    /// lowered (`limit_hold_cycles`).
+    limit_hold: u32,
+    /// The speed scale of the last cycle (it rises at the ramp rate).
+    speed_scale: Fx,
+    /// Counts cycles for the slip's take-back (every `TAKEBACK_EVERY`).
+    takeback_phase: u32,
     prev_q: Joints,
     /// The spring's anchor (raw arm frame): the client's target, reached
     /// within the force-impulse limit; held while the envelope ramps down.
@@ -281,6 +305,8 @@ pub struct Controller {
     impulse_torque: Fx,
     /// Cartesian brake gain for the period, N·s/m.
     brake_lin: Fx,
+    /// `V_ANCHOR_MAX`·T, m.
+    anchor_step: Fx,
     /// Indexing offset: indexed handle = (offset_pos + p, offset_rot ⊗ q).
     offset_pos: Vec3,
     offset_rot: Quat,
@@ -316,6 +342,10 @@ pub struct ControlOutput {
     /// Scale applied to the coupling's joint torques to fit the motor
     /// limits (1: none), [0, 1].
     pub torque_scale: Fx,
+    /// The allocation's scale of the force (1: all of it reached the
+    /// motors) and the speed scale (1: no fast motion withheld it), [0, 1].
+    pub force_scale: Fx,
+    pub speed_scale: Fx,
     /// The spring–damper wrench after the saturation, at last cycle's
     /// envelope and slip, before the passivity controller and the torque
     /// scaling: the force the target port sees right after the client's
@@ -344,11 +374,15 @@ impl Controller {
             prev_target: Pose::IDENTITY,
             prev_wrench: Wrench::ZERO,
             force_limit: MAX_FORCE,
+            limit_hold: 0,
+            speed_scale: Fx::ONE,
+            takeback_phase: 0,
             prev_q: JOINTS_ZERO,
             held_target: Pose::IDENTITY,
             impulse_force: Fx::ZERO,
             impulse_torque: Fx::ZERO,
             brake_lin: Fx::ZERO,
+            anchor_step: Fx::ZERO,
             offset_pos: Vec3::ZERO,
             offset_rot: Quat::IDENTITY,
             indexing: false,
@@ -376,6 +410,7 @@ impl Controller {
         self.impulse_force = FORCE_IMPULSE_N_PER_MS.mul_sat(ms);
         self.impulse_torque = TORQUE_IMPULSE_NM_PER_MS.mul_sat(ms);
         self.brake_lin = cartesian_brake_gain(period);
+        self.anchor_step = V_ANCHOR_MAX.mul_sat(period);
     }
 
     pub fn po_energy(&self) -> Fx {
@@ -444,6 +479,8 @@ impl Default for ControlOutput {
             po_energy: Fx::ZERO,
             envelope: Fx::ZERO,
             torque_scale: Fx::ONE,
+            force_scale: Fx::ONE,
+            speed_scale: Fx::ONE,
             spring_wrench: Wrench::ZERO,
         }
     }
@@ -459,16 +496,19 @@ impl Default for Controller {
 /// error `d` and rotational error `e`: a function of the stretch, whose
 /// force never exceeds `f_max`, so the motors can give all of it back.
 fn spring_energy(g: &Gains, f_max: Fx, d: Vec3, e: Vec3) -> Fx {
-    let dn = d.norm();
-    let kd = g.k_lin.mul_sat(dn);
-    let lin = if kd > f_max && g.k_lin.0 > 0 {
+    let rot = g.k_rot.mul_sat(e.norm_sq()).half();
+    lin_spring_energy(g.k_lin, f_max, d.norm()).add_sat(rot)
+}
+
+/// The translational part of [`spring_energy`] for a stretch of length `dn`.
+fn lin_spring_energy(k: Fx, f_max: Fx, dn: Fx) -> Fx {
+    let kd = k.mul_sat(dn);
+    if kd > f_max && k.0 > 0 {
         // F_max·(|d| − F_max/(2K))
-        f_max.mul_sat(dn.sub_sat(f_max.div_sat(g.k_lin.mul_sat(Fx::TWO))))
+        f_max.mul_sat(dn.sub_sat(f_max.div_sat(k.mul_sat(Fx::TWO))))
     } else {
         kd.mul_sat(dn).half()
-    };
-    let rot = g.k_rot.mul_sat(e.norm_sq()).half();
-    lin.add_sat(rot)
+    }
 }
 
 /// Per-component bounds of the coupling errors: position m, speed m/s,
@@ -647,8 +687,10 @@ pub fn cartesian_control(
             // function of the handle's pose around its anchor; the anchor's
             // move is the target port's step (observer, below).
             let a = ctrl.held_target;
+            // At least `V_ANCHOR_MAX`·T, so that an object moving as fast
+            // as the coupling lets the handle go is followed as it moves.
             let step_lin = if g.k_lin.0 > 0 {
-                ctrl.impulse_force.div_sat(g.k_lin)
+                ctrl.impulse_force.div_sat(g.k_lin).max(ctrl.anchor_step)
             } else {
                 D_CLAMP
             };
@@ -880,8 +922,11 @@ pub fn cartesian_control(
             };
         }
     }
-    let v_lin = v_h.norm();
-    if v_lin > V_BRAKE_ONSET {
+    // |v| only above the onset (compared squared first: no root in the
+    // common case).
+    let fast = v_h.norm_sq() > V_BRAKE_ONSET.mul_sat(V_BRAKE_ONSET);
+    let v_lin = if fast { v_h.norm() } else { Fx::ZERO };
+    if fast && v_lin > V_BRAKE_ONSET {
         alarms |= alarm::VELOCITY_LIMIT;
         // −B_c (|v| − v_on) v̂, as one vector scaled to the motors' room.
         let mag = ctrl.brake_lin.mul_sat(v_lin.sub_sat(V_BRAKE_ONSET));
@@ -906,7 +951,7 @@ pub fn cartesian_control(
     // torque gets what is left. Both are scaled by the speed scale where the
     // coupling would drive a fast joint or the handle along its motion.
     // The spring is not changed by any of this: it stays anchored.
-    if handle_wrench != Wrench::ZERO {
+    if handle_wrench != Wrench::ZERO && over.contains(&true) {
         for (((qd, o), start), tc) in ps
             .qd
             .iter()
@@ -922,6 +967,8 @@ pub fn cartesian_control(
                 speed_s = speed_s.min(speed_scale(qd.abs(), *start, stop));
             }
         }
+    }
+    if handle_wrench != Wrench::ZERO {
         if v_lin > V_BRAKE_ONSET && handle_wrench.force.dot(v_h).0 > 0 {
             speed_s = speed_s.min(speed_scale(v_lin, V_BRAKE_ONSET, V_COUPLING_STOP));
         }
@@ -929,30 +976,35 @@ pub fn cartesian_control(
             handle_wrench = handle_wrench.scale(speed_s);
         }
     }
-    let tau_f = kin.jacobian_transpose_mul(&Wrench {
-        force: handle_wrench.force,
-        torque: Vec3::ZERO,
-    });
-    let mut s_f = Fx::ONE;
-    for ((tc, tf), lim) in tau_f.iter().zip(fixed.iter()).zip(arm::TAU_MAX.iter()) {
-        s_f = s_f.min(fit_scale(*tf, *tc, *lim));
-    }
-    let tau_t = kin.jacobian_transpose_mul(&Wrench {
-        force: Vec3::ZERO,
-        torque: handle_wrench.torque,
-    });
-    let mut s_t = Fx::ONE;
-    for (((tt, tc), tf), lim) in tau_t
+    // One product in the common case: the whole wrench fits.
+    let tau_w = kin.jacobian_transpose_mul(&handle_wrench);
+    let fits = tau_w
         .iter()
-        .zip(tau_f.iter())
         .zip(fixed.iter())
         .zip(arm::TAU_MAX.iter())
-    {
-        s_t = s_t.min(fit_scale(tf.add_sat(tc.mul_sat(s_f)), *tt, *lim));
-    }
-    let s = s_f.min(s_t).mul_sat(speed_s);
-    let mut tau_c = JOINTS_ZERO;
-    if s_f < Fx::ONE || s_t < Fx::ONE {
+        .all(|((tc, tf), lim)| tf.add_sat(*tc).abs() <= *lim);
+    let (mut s_f, mut s_t) = (Fx::ONE, Fx::ONE);
+    let mut tau_c = tau_w;
+    if !fits {
+        let tau_f = kin.jacobian_transpose_mul(&Wrench {
+            force: handle_wrench.force,
+            torque: Vec3::ZERO,
+        });
+        for ((tc, tf), lim) in tau_f.iter().zip(fixed.iter()).zip(arm::TAU_MAX.iter()) {
+            s_f = s_f.min(fit_scale(*tf, *tc, *lim));
+        }
+        let tau_t = kin.jacobian_transpose_mul(&Wrench {
+            force: Vec3::ZERO,
+            torque: handle_wrench.torque,
+        });
+        for (((tt, tc), tf), lim) in tau_t
+            .iter()
+            .zip(tau_f.iter())
+            .zip(fixed.iter())
+            .zip(arm::TAU_MAX.iter())
+        {
+            s_t = s_t.min(fit_scale(tf.add_sat(tc.mul_sat(s_f)), *tt, *lim));
+        }
         alarms |= alarm::TORQUE_SATURATED;
         handle_wrench = Wrench {
             force: handle_wrench.force.scale(s_f),
@@ -961,11 +1013,8 @@ pub fn cartesian_control(
         for ((o, tc), tt) in tau_c.iter_mut().zip(tau_f.iter()).zip(tau_t.iter()) {
             *o = tc.mul_sat(s_f).add_sat(tt.mul_sat(s_t));
         }
-    } else {
-        for ((o, tc), tt) in tau_c.iter_mut().zip(tau_f.iter()).zip(tau_t.iter()) {
-            *o = tc.add_sat(*tt);
-        }
     }
+    let s = s_f.min(s_t).mul_sat(speed_s);
     let mut joint_torques = JOINTS_ZERO;
     for (((o, tf), tc), lim) in joint_torques
         .iter_mut()
@@ -976,6 +1025,7 @@ pub fn cartesian_control(
         // Within the limit up to rounding of the scaled products.
         *o = tf.add_sat(*tc).clamp_abs(*lim);
     }
+    ctrl.speed_scale = if ctrl.coupled { speed_s } else { Fx::ONE };
     if ctrl.coupled {
         ctrl.prev_wrench = handle_wrench;
         for ((p, o), tf) in ctrl
@@ -1009,29 +1059,52 @@ pub fn cartesian_control(
             ctrl.slip_rot = e.sub(e_eff.scale(lt));
         }
         if lf < Fx::ONE {
+            // A hair below what was applied, so that the next cycle fits
+            // the motors without the split (rounding of the scaled product).
             let applied = f_spring.norm().mul_sat(lf);
+            let applied = applied.sub_sat(Fx(applied.0 >> 10));
             ctrl.force_limit = ctrl.force_limit.min(applied).max(Fx::ZERO);
+            ctrl.limit_hold = limit_hold_cycles(ctrl.ramp_step);
+        } else if ctrl.limit_hold > 0 {
+            // Just limited: stay at the capacity a while before trying
+            // higher (a limit that tries every cycle would split the
+            // allocation every other cycle).
+            ctrl.limit_hold -= 1;
         } else if ctrl.force_limit < MAX_FORCE {
             let raised = ctrl
                 .force_limit
                 .add_sat(MAX_FORCE.mul_sat(ctrl.ramp_step))
                 .min(MAX_FORCE);
-            let v_old = spring_energy(&g, ctrl.force_limit, d_eff, e_eff);
-            let v_new = spring_energy(&g, raised, d_eff, e_eff);
+            let dn = d_eff.norm();
+            let v_old = lin_spring_energy(g.k_lin, ctrl.force_limit, dn);
+            let v_new = lin_spring_energy(g.k_lin, raised, dn);
             let cost = v_new.sub_sat(v_old).max(Fx::ZERO);
-            if ctrl.po_energy.sub_sat(cost) >= v_new {
+            let v_all = spring_energy(&g, raised, d_eff, e_eff);
+            if ctrl.po_energy.sub_sat(cost) >= v_all {
                 ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
                 ctrl.force_limit = raised;
             }
         }
-        if (ctrl.slip != Vec3::ZERO || ctrl.slip_rot != Vec3::ZERO) && lt >= Fx::ONE {
+        // Taken back once every `TAKEBACK_EVERY` cycles by that many ramp
+        // steps (at most 0.4 N/ms still; the energies cost a few roots).
+        ctrl.takeback_phase = ctrl.takeback_phase.wrapping_add(1);
+        if (ctrl.slip != Vec3::ZERO || ctrl.slip_rot != Vec3::ZERO)
+            && lt >= Fx::ONE
+            && ctrl.takeback_phase % TAKEBACK_EVERY == 0
+        {
+            let step = MAX_FORCE
+                .mul_sat(ctrl.ramp_step)
+                .mul_int(i64::from(TAKEBACK_EVERY));
             let dl = if g.k_lin.0 > 0 {
-                MAX_FORCE.mul_sat(ctrl.ramp_step).div_sat(g.k_lin)
+                step.div_sat(g.k_lin)
             } else {
                 D_CLAMP
             };
+            let step_t = MAX_TORQUE
+                .mul_sat(ctrl.ramp_step)
+                .mul_int(i64::from(TAKEBACK_EVERY));
             let dr = if g.k_rot.0 > 0 {
-                MAX_TORQUE.mul_sat(ctrl.ramp_step).div_sat(g.k_rot)
+                step_t.div_sat(g.k_rot)
             } else {
                 Fx::TWO
             };
@@ -1068,6 +1141,8 @@ pub fn cartesian_control(
         po_energy: ctrl.po_energy,
         envelope: ctrl.envelope,
         torque_scale: s,
+        force_scale: s_f,
+        speed_scale: speed_s,
         spring_wrench,
     }
 }

@@ -152,6 +152,8 @@ impl Servo {
                 po_energy: Fx::ZERO,
                 envelope: Fx::ZERO,
                 torque_scale: Fx::ONE,
+                force_scale: Fx::ONE,
+                speed_scale: Fx::ONE,
                 spring_wrench: super::fixed::Wrench::ZERO,
             },
         }
