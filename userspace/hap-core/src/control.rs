@@ -291,8 +291,6 @@ pub struct Controller {
     /// Cycles left before the force limit may rise again after it was
     /// lowered (`limit_hold_cycles`).
     limit_hold: u32,
-    /// The speed scale of the last cycle (it rises at the ramp rate).
-    speed_scale: Fx,
     /// Counts cycles for the slip's take-back (every `TAKEBACK_EVERY`).
     takeback_phase: u32,
     prev_q: Joints,
@@ -375,7 +373,6 @@ impl Controller {
             prev_wrench: Wrench::ZERO,
             force_limit: MAX_FORCE,
             limit_hold: 0,
-            speed_scale: Fx::ONE,
             takeback_phase: 0,
             prev_q: JOINTS_ZERO,
             held_target: Pose::IDENTITY,
@@ -1025,7 +1022,6 @@ pub fn cartesian_control(
         // Within the limit up to rounding of the scaled products.
         *o = tf.add_sat(*tc).clamp_abs(*lim);
     }
-    ctrl.speed_scale = if ctrl.coupled { speed_s } else { Fx::ONE };
     if ctrl.coupled {
         ctrl.prev_wrench = handle_wrench;
         for ((p, o), tf) in ctrl

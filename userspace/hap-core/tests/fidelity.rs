@@ -1,0 +1,220 @@
+//! What the hand feels, asserted on a few cases of the fidelity bench
+//! (`examples/fidelity.rs`, `scripts/bench-fidelity.sh` prints them all):
+//! felt stiffness of a rigid wall per period, the 10 N / 5 N penetration
+//! ratio where the motors can give 10 N, the wall back where it was after a
+//! push beyond the motors' capacity (the spring does not slip), and the
+//! largest force step in one 1 ms cycle for client-driven changes.
+//! Through `ServoCycle::run` with a `MotorLine`, host, deterministic.
+
+use hap_core::arm;
+use hap_core::config::{CommandType, ServoConfig};
+use hap_core::cycle::ServoCycle;
+use hap_core::effort::EffortSample;
+use hap_core::fixed::{Fx, Joints, Pose, Vec3, Wrench, JOINTS_ZERO};
+use hap_core::io::MotorLine;
+use hap_core::servo::{PowerRequest, ServoInputs, ServoMode};
+use hap_core::vp::VpReceived;
+
+struct Rig {
+    c: ServoCycle,
+    line: MotorLine,
+    cfg: ServoConfig,
+    vpr: VpReceived,
+    wall: Pose,
+    period_s: f64,
+}
+
+fn hand(force: [f64; 3], power: PowerRequest) -> ServoInputs {
+    ServoInputs {
+        power_request: power,
+        live_effort: Some(EffortSample {
+            wrench: Wrench {
+                force: Vec3::from_f64(force),
+                torque: Vec3::ZERO,
+            },
+            dead_man: true,
+            buttons: 0,
+        }),
+    }
+}
+
+impl Rig {
+    /// Powered and coupled at `q` to an object held still at the handle.
+    fn new(period_us: u32, q: &Joints) -> Rig {
+        let line = MotorLine::new();
+        let mut c = ServoCycle::new(period_us);
+        c.servo.init();
+        c.servo.simulator_mut().set_state(q, &JOINTS_ZERO);
+        let cfg = ServoConfig {
+            command_type: CommandType::Impedance,
+            ..Default::default()
+        };
+        let r = c.run(
+            &line,
+            &hand([0.0; 3], PowerRequest::On),
+            &cfg,
+            None,
+            ServoMode::Main,
+        );
+        let wall = r.vp.handle_pose;
+        let vpr = VpReceived {
+            pose: wall,
+            valid: true,
+            seq: 1,
+            ..Default::default()
+        };
+        let mut rig = Rig {
+            c,
+            line,
+            cfg,
+            vpr,
+            wall,
+            period_s: f64::from(period_us) * 1e-6,
+        };
+        rig.run_for(0.3, [0.0; 3]);
+        rig
+    }
+
+    fn cycles(&self, s: f64) -> usize {
+        (s / self.period_s).round() as usize
+    }
+
+    /// One cycle; returns the penetration along `u` and the motors' force.
+    fn step(&mut self, force: [f64; 3], u: [f64; 3]) -> (f64, [f64; 3]) {
+        self.vpr.seq = self.vpr.seq.wrapping_add(1);
+        self.vpr.received_cycle = self.c.servo.cycle();
+        let r = self.c.run(
+            &self.line,
+            &hand(force, PowerRequest::None),
+            &self.cfg,
+            Some(&self.vpr),
+            ServoMode::Main,
+        );
+        let p = r.vp.handle_pose.position.to_f64();
+        let w = self.wall.position.to_f64();
+        let pen = (0..3).map(|i| (p[i] - w[i]) * u[i]).sum();
+        (
+            pen,
+            self.c.servo.control_output().handle_wrench.force.to_f64(),
+        )
+    }
+
+    fn run_for(&mut self, s: f64, force: [f64; 3]) -> f64 {
+        let mut pen = 0.0;
+        for _ in 0..self.cycles(s) {
+            pen = self.step(force, [0.0; 3]).0;
+        }
+        pen
+    }
+
+    /// Mean penetration along `u` over the last 0.3 s of a 1.2 s push.
+    fn penetration(&mut self, u: [f64; 3], push: f64) -> f64 {
+        let force = u.map(|x| x * push);
+        for _ in 0..self.cycles(0.9) {
+            self.step(force, u);
+        }
+        let n = self.cycles(0.3);
+        (0..n).map(|_| self.step(force, u).0).sum::<f64>() / n as f64
+    }
+}
+
+const SIDEWAYS: [f64; 3] = [0.0, 1.0, 0.0];
+const DOWN: [f64; 3] = [0.0, 0.0, -1.0];
+
+fn centre() -> Joints {
+    [0.0, -0.3, 1.3, 0.0, 0.2, 0.0].map(Fx::from_f64)
+}
+
+#[test]
+fn felt_stiffness_of_a_rigid_wall_per_period() {
+    // N/mm at 5 N: ≥ 1.0 at 1 ms, ≥ 3.0 at 250 µs, ≥ 5.0 at 100 µs.
+    for (us, min) in [(1000u32, 1.0), (250, 3.0), (100, 5.0)] {
+        for q in [arm::WORK_Q, centre()] {
+            for u in [SIDEWAYS, DOWN] {
+                let pen = Rig::new(us, &q).penetration(u, 5.0);
+                let k = 5.0 / (pen * 1000.0);
+                println!("{us} µs, axis {u:?}: {k:.2} N/mm ({:.2} mm)", pen * 1000.0);
+                assert!(k >= min, "{us} µs, axis {u:?}: {k:.2} N/mm");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_10_n_push_within_the_capacity_stays_within_2_5_times_the_5_n_one() {
+    // Centre pose sideways: the motors give 18 N against it.
+    for us in [1000u32, 250] {
+        let p5 = Rig::new(us, &centre()).penetration(SIDEWAYS, 5.0);
+        let p10 = Rig::new(us, &centre()).penetration(SIDEWAYS, 10.0);
+        println!(
+            "{us} µs: 5 N {:.2} mm, 10 N {:.2} mm",
+            p5 * 1000.0,
+            p10 * 1000.0
+        );
+        assert!(p10 <= 2.5 * p5, "{us} µs: {p10} vs {p5}");
+    }
+}
+
+#[test]
+fn the_wall_is_back_after_a_push_beyond_the_capacity() {
+    // WORK_Q downward: the wrist pitch motor gives 8.5 N against it. A
+    // 10.7 N push for 0.3 s sinks the handle; a 2 N touch afterwards finds
+    // the wall where it was (the spring stayed anchored), within 0.5 s.
+    let us = 1000;
+    let touch = Rig::new(us, &arm::WORK_Q).penetration(DOWN, 2.0);
+    let mut rig = Rig::new(us, &arm::WORK_Q);
+    let deep = {
+        let mut pen = 0.0;
+        for _ in 0..rig.cycles(0.3) {
+            pen = rig.step(DOWN.map(|x| x * 10.7), DOWN).0;
+        }
+        pen
+    };
+    assert!(deep > 0.05, "the push went beyond the capacity: {deep}");
+    let mut back = None;
+    for n in 0..rig.cycles(1.0) {
+        let pen = rig.step(DOWN.map(|x| x * 2.0), DOWN).0;
+        if back.is_none() && (pen - touch).abs() < 1e-3 {
+            back = Some(n);
+        }
+    }
+    let ms = back.expect("the wall came back within 1 s") as f64 * rig.period_s * 1000.0;
+    println!(
+        "sank {:.0} mm, back within 1 mm of the 2 N touch after {ms:.0} ms",
+        deep * 1000.0
+    );
+    assert!(ms <= 500.0, "{ms} ms");
+    assert_eq!(rig.c.servo.controller().slip().0, Vec3::ZERO);
+}
+
+#[test]
+fn client_driven_force_steps_stay_below_2_n_per_1_ms_cycle() {
+    let us = 1000;
+    let worst = |script: &dyn Fn(&mut Rig, usize)| {
+        let mut rig = Rig::new(us, &arm::WORK_Q);
+        let mut prev = rig.c.servo.control_output().handle_wrench.force.to_f64();
+        let mut w: f64 = 0.0;
+        for k in 0..rig.cycles(0.4) {
+            script(&mut rig, k);
+            let f = rig.step([0.0; 3], SIDEWAYS).1;
+            w = w.max(
+                ((f[0] - prev[0]).powi(2) + (f[1] - prev[1]).powi(2) + (f[2] - prev[2]).powi(2))
+                    .sqrt(),
+            );
+            prev = f;
+        }
+        w
+    };
+    let alternating = worst(&|r: &mut Rig, k| {
+        let s = if k % 2 == 0 { 0.02 } else { -0.02 };
+        r.vpr.pose.position = r.wall.position.add(Vec3::from_f64([0.0, s, 0.0]));
+    });
+    let jump = worst(&|r: &mut Rig, k| {
+        if k == 5 {
+            r.vpr.pose.position = r.wall.position.add(Vec3::from_f64([0.1, 0.0, 0.0]));
+        }
+    });
+    println!("largest step: alternating ±2 cm {alternating:.3} N, 10 cm jump {jump:.3} N");
+    assert!(alternating <= 2.0, "{alternating}");
+    assert!(jump <= 2.0, "{jump}");
+}
