@@ -28,7 +28,7 @@ fn open(p: &FakePeer) -> *mut c_void {
     let addr = CString::new(p.address()).unwrap();
     // SAFETY: a NUL-terminated string.
     let vc = unsafe { virtOpen(addr.as_ptr()) };
-    assert!(!vc.is_null(), "virtOpen failed: {}", virtGetErrorCode(vc));
+    assert!(!vc.is_null(), "virtOpen failed: {}", code());
     vc
 }
 
@@ -38,8 +38,10 @@ fn k_lin() -> f64 {
         .to_f64()
 }
 
+/// The calling thread's last error code.
 fn code() -> c_int {
-    virtGetErrorCode(std::ptr::null_mut())
+    // SAFETY: NULL asks for the calling thread's code.
+    unsafe { virtGetErrorCode(std::ptr::null_mut()) }
 }
 
 #[test]
@@ -457,7 +459,9 @@ fn the_loop_runs_while_another_thread_waits_for_a_button() {
         // (The context outlives this thread: joined below.)
         let waiter = std::thread::spawn(move || {
             let r = virtWaitPressButton(addr as *mut c_void, 0);
-            (r, virtGetErrorCode(addr as *mut c_void))
+            // The thread's own code: the callback loop makes calls on the
+            // context meanwhile (the context's code is its last call's).
+            (r, code())
         });
         std::thread::sleep(Duration::from_millis(100));
         let (c0, a0) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
@@ -555,7 +559,9 @@ fn a_request_round_trip_does_not_stall_the_loop() {
         // (The context outlives this thread: joined below.)
         let requester = std::thread::spawn(move || {
             let r = virtSetPowerOn(addr as *mut c_void, 1);
-            (r, virtGetErrorCode(addr as *mut c_void))
+            // The thread's own code: the callback loop makes calls on the
+            // context meanwhile (the context's code is its last call's).
+            (r, code())
         });
         std::thread::sleep(Duration::from_millis(100));
         let (c0, a0) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
@@ -702,7 +708,7 @@ fn status_reads_and_what_is_not_implemented() {
     let vc = open(&p);
     // SAFETY: vc is live; pointers valid.
     unsafe {
-        let (mut dm, mut es, mut pw, mut b) = (0, 0, 0, 7);
+        let (mut dm, mut es, mut pw) = (0, 0, 0);
         assert_eq!(virtSetPowerOn(vc, 1), 0);
         std::thread::sleep(Duration::from_millis(20));
         assert_eq!(virtGetPowerOn(vc, &mut pw), 0);
@@ -712,9 +718,12 @@ fn status_reads_and_what_is_not_implemented() {
         // VirtuoseAPI's meaning: 1 = operational (emergency stop released).
         assert_eq!(virtGetEmergencyStop(vc, &mut es), 0);
         assert_eq!(es, 1);
-        assert_eq!(virtGetButton(vc, 0, &mut b), 0);
-        assert_eq!(b, 0);
-        assert_eq!(virtGetButton(vc, 5, &mut b), -1);
+        for n in [-1, 0, 1, 2, 3, 5, 1000] {
+            let mut b = 7;
+            assert_eq!(virtGetButton(vc, n, &mut b), 0, "button {n}");
+            assert_eq!(b, 0, "button {n}");
+        }
+        assert_eq!(virtWaitPressButton(vc, 3), -1);
         assert_eq!(code(), VIRT_E_INCORRECT_VALUE);
         let mut fail: c_uint = 9;
         assert_eq!(virtGetFailure(vc, &mut fail), 0);
@@ -767,12 +776,19 @@ fn buttons_emergency_stop_and_failures_from_the_answers() {
     let vc = open(&p);
     // SAFETY: vc is live; pointers valid.
     unsafe {
-        let (mut b0, mut b1, mut es) = (7, 7, 7);
+        // The second button (hapticctrl's BUTTON_2) is pressed: Haption's
+        // button 2; 1 (and 0) are the first.
+        let (mut b0, mut b1, mut b2, mut b3, mut es) = (7, 7, 7, 7, 7);
         assert_eq!(virtGetButton(vc, 0, &mut b0), 0);
         assert_eq!(virtGetButton(vc, 1, &mut b1), 0);
-        assert_eq!((b0, b1), (0, 1));
-        // Button 1 is pressed: returns at once.
-        assert_eq!(virtWaitPressButton(vc, 1), 0);
+        assert_eq!(virtGetButton(vc, 2, &mut b2), 0);
+        assert_eq!(virtGetButton(vc, 3, &mut b3), 0);
+        assert_eq!((b0, b1, b2, b3), (0, 0, 1, 0));
+        let mut shift = 7;
+        assert_eq!(virtIsInShiftPosition(vc, &mut shift), 0);
+        assert_eq!(shift, 0);
+        // Button 2 is pressed: returns at once.
+        assert_eq!(virtWaitPressButton(vc, 2), 0);
         assert_eq!(virtGetEmergencyStop(vc, &mut es), 0);
         assert_eq!(es, 0, "pressed: not operational");
         let (mut fail, mut a): (c_uint, c_uint) = (0, 0);
