@@ -2011,7 +2011,7 @@ fn cycle_reached(a: u32, b: u32) -> bool {
 /// controller serves, not faster: a controller slower than its nominal
 /// period (emulation, a loaded host) is not flooded with set-points it
 /// cannot use. After each call, in COMMAND_TYPE_IMPEDANCE, the force command
-/// is streamed. A call (with the streaming) that ends when the controller
+/// is streamed, and with a quasi-static object in VIRTMECH its set-point. A call (with the streaming) that ends when the controller
 /// has already reached the next call's cycle is an overrun: latched in
 /// `VIRT_ALARM_CALLBACK_OVERRUN`, counted, and the missed periods skipped.
 /// Without answers (link lost), the function is not called.
