@@ -2,14 +2,19 @@
  * VirtuoseAPI.h - hapticctrl's drop-in declaration of Haption's VirtuoseAPI
  * (4.x): the same names, types, enum and macro values, so an application
  * written for Haption's library recompiles unchanged and links against
- * hapticctrl's libvirtuose_api (userspace/virtuose_api):
+ * hapticctrl's libvirtuose_api (userspace/virtuose_api), also installed
+ * under Haption's names (scripts/install-virtuose-api.sh: libvirtuose,
+ * libVirtuoseAPI, libvirtuoseDLL, virtuoseAPI.so; this header also as
+ * virtuoseAPI.h):
  *
  *   cc -I include app.c userspace/target/release/libvirtuose_api.a \
  *      -lpthread -ldl -lm
+ *   cc app.c -lvirtuose          (installed)
  *
- * Every function returns 0 on success and -1 on error (virtOpen: NULL); the
- * error code of the calling thread is then given by virtGetErrorCode() and
- * explained by virtGetErrorMessage(). Functions that have no meaning on
+ * Every function returns 0 on success and -1 on error (virtOpen: NULL);
+ * virtGetErrorCode(VC) then gives the code of the last call on the context
+ * (virtGetErrorCode(NULL): of the calling thread's last call, e.g. a failed
+ * virtOpen), explained by virtGetErrorMessage(). Functions that have no meaning on
  * hapticctrl (gloves, trackball, PWM and analog outputs, virtual-mechanism
  * splines, speed control, textures, articular commands) fail with
  * VIRT_E_NOT_IMPLEMENTED. Documentation/userguide.md lists the status of

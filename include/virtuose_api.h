@@ -10,7 +10,8 @@
  * Conventions:
  *  - every function returns 0 on success and -1 on error (virtOpen: NULL);
  *    the error is then given by virtGetErrorCode() / virtGetErrorMessage()
- *    (kept per calling thread, VIRT_E_* codes of VirtuoseAPI.h);
+ *    (kept per context; with a NULL context, per calling thread; VIRT_E_*
+ *    codes of VirtuoseAPI.h);
  *  - position float[7] = x, y, z (m), qx, qy, qz, qw (unit quaternion,
  *    scalar last); speed float[6] = vx, vy, vz (m/s), wx, wy, wz (rad/s);
  *    force float[6] = fx, fy, fz (N), tx, ty, tz (N.m);

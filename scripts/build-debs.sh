@@ -5,8 +5,12 @@
 #    kernel headers' rust/ (scripts/rust-headers.sh), so DKMS builds the module
 #    for every installed Rust-enabled kernel, and again after a kernel upgrade;
 #  - hapticctrl-tools (amd64): proto_interface, hapctl, hapdev, virtuose_demo,
-#    the launch script hapticctrl.sh, libvirtuose_api (.so, .a) and its header,
-#    the sample effort sequences (/usr/share/hapticctrl/*.eff).
+#    the launch script hapticctrl.sh, the VirtuoseAPI library as
+#    scripts/install-virtuose-api.sh installs it (headers VirtuoseAPI.h,
+#    virtuoseAPI.h, virtuose_api.h; libvirtuose_api and Haption's names
+#    libvirtuose, libVirtuoseAPI, libvirtuoseDLL, virtuoseAPI.so; virtuose.pc;
+#    the CMake package VirtuoseAPI), the sample effort sequences
+#    (/usr/share/hapticctrl/*.eff).
 #   scripts/build-debs.sh [--out DIR]      (default build/debs; prints the two paths)
 set -euo pipefail
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
@@ -87,14 +91,13 @@ t=$stage/tools
 mkdir -p "$t/DEBIAN" "$t/usr/bin" "$t/usr/sbin" "$t/usr/lib/x86_64-linux-gnu" "$t/usr/include" "$t/usr/share/doc/hapticctrl-tools"
 for b in proto_interface hapctl hapdev virtuose_demo; do install -m 755 "$rel/$b" "$t/usr/bin/$b"; done
 install -m 755 "$HAP_ROOT/scripts/hapticctrl.sh" "$t/usr/sbin/hapticctrl.sh"
-install -m 644 "$rel/libvirtuose_api.so" "$rel/libvirtuose_api.a" "$t/usr/lib/x86_64-linux-gnu/"
-install -m 644 "$HAP_ROOT/include/virtuose_api.h" "$t/usr/include/"
+bash "$HAP_ROOT/scripts/install-virtuose-api.sh" --prefix /usr --libdir lib/x86_64-linux-gnu --destdir "$t" --no-build >/dev/null
 mkdir -p "$t/usr/share/hapticctrl"
 install -m 644 "$HAP_ROOT"/tests/data/*.eff "$t/usr/share/hapticctrl/"
 printf 'hapticctrl\nLicense: GPL-2.0-only\n' >"$t/usr/share/doc/hapticctrl-tools/copyright"
 # Depends: the packages (on this machine) of the shared libraries the ELF
 # files need, at least at the versions built against.
-deps=$(for f in "$t"/usr/bin/* "$t"/usr/lib/x86_64-linux-gnu/*.so; do objdump -p "$f" | awk '/NEEDED/ { print $2 }'; done | sort -u |
+deps=$(for f in "$t"/usr/bin/* "$t"/usr/lib/x86_64-linux-gnu/*.so*; do [ -L "$f" ] && continue; objdump -p "$f" | awk '/NEEDED/ { print $2 }'; done | sort -u |
   while read -r lib; do
     path=$(ldconfig -p | awk -v l="$lib" '$1 == l && /x86-64/ { print $NF; exit }')
     [ -n "$path" ] || continue
@@ -114,8 +117,10 @@ Recommends: hapticctrl-dkms
 Description: hapticctrl real-time haptic servo controller, userspace tools
  proto_interface (the UDP bridge between clients and the kernel module),
  hapctl (control and analysis), hapdev (device-level tool), virtuose_demo
- (test client), the launch script hapticctrl.sh, and the VirtuoseAPI-style
- client library libvirtuose_api with its C header.
+ (test client), the launch script hapticctrl.sh, and the client library:
+ Haption's VirtuoseAPI (headers VirtuoseAPI.h and virtuoseAPI.h, libraries
+ libvirtuose, libVirtuoseAPI, libvirtuoseDLL, virtuoseAPI.so, pkg-config
+ virtuose, CMake package VirtuoseAPI) and hapticctrl's libvirtuose_api.
 EOF
 tools_deb=$out/hapticctrl-tools_${VERSION}_amd64.deb
 dpkg-deb --root-owner-group -Zxz -b "$t" "$tools_deb" >/dev/null

@@ -64,6 +64,11 @@ if [ "$host" = 1 ]; then
   bash tests/visp/run.sh --target fake 2>&1 | tee "$out"
   line=$(grep -E '^visp-fake: [0-9]+ passed' "$out" | tail -1)
   add "ViSP on VirtuoseAPI.h (fake controller)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+  log "VirtuoseAPI applications' include, library names and calls (tests/vapi/apps.c) against the installed layout"
+  t_vapi=$(date +%s)
+  bash tests/vapi/run.sh 2>&1 | tee "$out"
+  line=$(grep -E '^vapi-apps: [0-9]+ passed' "$out" | tail -1)
+  add "VirtuoseAPI applications' conventions (installed layout, fake controller, $(( $(date +%s) - t_vapi )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
   rm -f "$out"
 fi
 

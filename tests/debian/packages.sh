@@ -31,6 +31,7 @@ if [ ${#debs[@]} = 2 ] && [ -f "${debs[0]}" ] && [ -f "${debs[1]}" ]; then ok "b
 ver=$(dpkg-deb -f "${debs[0]}" Version)
 check "the dkms package holds dkms.conf with the rust/ pre-build step" sh -c "dpkg-deb --fsys-tarfile '${debs[0]}' | tar -xO ./usr/src/hapticctrl-$ver/dkms.conf | grep -q '^PRE_BUILD=\"scripts/rust-headers.sh'"
 check "the tools package holds proto_interface, hapctl, hapdev, virtuose_demo, hapticctrl.sh, libvirtuose_api" sh -c "dpkg-deb -c '${debs[1]}' | grep -c -E '/usr/bin/(proto_interface|hapctl|hapdev|virtuose_demo)$|/usr/sbin/hapticctrl.sh$|libvirtuose_api.so$|virtuose_api.h$' | grep -qx 7"
+check "the tools package holds VirtuoseAPI.h, virtuoseAPI.h and Haption's library names, virtuose.pc, the CMake package" sh -c "dpkg-deb -c '${debs[1]}' | grep -c -E '/usr/include/(VirtuoseAPI|virtuoseAPI).h$|x86_64-linux-gnu/(libvirtuose.so|libvirtuose.so.4|libVirtuoseAPI.so|libVirtuoseAPI.so.4|libvirtuoseDLL.so|libvirtuoseDLL.so.4|virtuoseAPI.so|libvirtuose.a|pkgconfig/virtuose.pc|cmake/VirtuoseAPI/VirtuoseAPIConfig.cmake)( ->|$)' | grep -qx 12"
 
 # Install both in the chroot (the test removes them again at the end).
 mkdir -p "$C/tmp/hap-debs"; cp "${debs[@]}" "$C/tmp/hap-debs/"
@@ -53,6 +54,14 @@ check "hapctl --help runs" in_chroot hapctl --help
 check "proto_interface --help runs" in_chroot proto_interface --help
 check "hapdev --help runs" in_chroot hapdev --help
 check "virtuose_demo --help runs" in_chroot virtuose_demo --help
+# An application spelling the header and the library as Haption's do builds
+# against the installed package and runs (no controller needed for the
+# version).
+printf '#include "virtuoseAPI.h"\n#include <stdio.h>\nint main(void) { int a = 0, b = 0; virtAPIVersion(&a, &b); printf("%%d.%%d\\n", a, b); return a != 4; }\n' >"$C/tmp/hap-debs/app.c"
+for l in -lvirtuose -lVirtuoseAPI -lvirtuoseDLL -l:virtuoseAPI.so; do
+  check "an application with #include \"virtuoseAPI.h\" and $l builds and runs against the package" \
+    in_chroot sh -c "cc /tmp/hap-debs/app.c $l -o /tmp/hap-debs/app && /tmp/hap-debs/app"
+done
 check "a bad argument is a clear error, not a panic" sh -c "! bash '$DK' run proto_interface --no-such-option 2>&1 | grep -q panicked"
 check "hapticctrl.sh status says the module is not loaded" sh -c "bash '$DK' run hapticctrl.sh status 2>&1 | grep -q 'module: not loaded'"
 

@@ -2,7 +2,11 @@
 //! testing programs written in other languages against the library:
 //!
 //!   fake_controller [--port N] [--period-us N] [--duration S] [--center X,Y,Z] [--amplitude X,Y,Z]
+//!                   [--buttons MASK] [--power-lag N]
 //!
+//! `--buttons`: the handle's buttons held pressed in every answer (1: the
+//! first, 2: the second, 3: both); `--power-lag`: answers that still report
+//! the previous power state after a power request was acknowledged.
 //! Prints `PORT <n>` (UDP, 127.0.0.1; `--port 0`, the default, picks a free
 //! one) once listening, answers every period
 //! like the controller, and after `--duration` seconds (or when stdin is
@@ -11,6 +15,7 @@
 use std::io::{BufRead, Write};
 use std::time::{Duration, Instant};
 
+use hap_core::vp::status;
 use virtuose_api::fake_peer::{FakePeer, FakePeerConfig};
 
 fn triple(s: &str) -> Result<[f64; 3], String> {
@@ -62,6 +67,20 @@ fn main() {
             }
             "--center" => cfg.center = triple(&val).unwrap_or_else(|e| bad(e)),
             "--amplitude" => cfg.amplitude = triple(&val).unwrap_or_else(|e| bad(e)),
+            "--buttons" => {
+                let mask: u32 = val
+                    .parse()
+                    .ok()
+                    .filter(|m| *m <= 3)
+                    .unwrap_or_else(|| bad(format!("--buttons {val}: 0..3")));
+                cfg.extra_status = (if mask & 1 != 0 { status::BUTTON_1 } else { 0 })
+                    | (if mask & 2 != 0 { status::BUTTON_2 } else { 0 });
+            }
+            "--power-lag" => {
+                cfg.power_lag_answers = val
+                    .parse()
+                    .unwrap_or_else(|_| bad(format!("--power-lag {val}: a number of answers")))
+            }
             a => bad(format!("unknown argument {a}")),
         }
         i += 2;
@@ -96,4 +115,12 @@ fn main() {
     );
     println!("max_vo_offset_m: {:.6}", s.max_vo_offset);
     println!("session_open: {}", s.client.is_some() as u8);
+    println!(
+        "last_vo_pose: {}",
+        s.last_vo_pose.map(|v| format!("{v:.6}")).join(",")
+    );
+    println!(
+        "last_handle_position: {}",
+        s.last_handle_position.map(|v| format!("{v:.6}")).join(",")
+    );
 }

@@ -55,6 +55,10 @@ pub struct FakePeerConfig {
     /// Neither apply nor acknowledge power requests (a controller that
     /// does not answer a request: the client's retries time out).
     pub ignore_power_requests: bool,
+    /// Answers that still report the previous power state after a power
+    /// request was applied and acknowledged (a controller whose status
+    /// lags its acknowledgement).
+    pub power_lag_answers: u32,
 }
 
 impl Default for FakePeerConfig {
@@ -75,6 +79,7 @@ impl Default for FakePeerConfig {
             extra_status: 0,
             alarms: 0,
             ignore_power_requests: false,
+            power_lag_answers: 0,
         }
     }
 }
@@ -176,6 +181,10 @@ fn run(
     let mut seq: u32 = 0;
     let mut cycle: u32 = 0;
     let mut powered = cfg.powered;
+    // The power state the answers report, and the answers left before they
+    // report `powered`.
+    let mut reported_power = cfg.powered;
+    let mut lag_left: u32 = 0;
     let mut attached = false;
     let mut n_answers: u64 = 0;
     let w = 2.0 * std::f64::consts::PI * cfg.freq_hz;
@@ -291,7 +300,14 @@ fn run(
             if let Some(c) = client {
                 let now = Instant::now();
                 if now >= next_answer {
-                    answer(&mut seq, session, c, &mut out, &last_vpr, powered, attached);
+                    let shown = if lag_left > 0 {
+                        lag_left -= 1;
+                        reported_power
+                    } else {
+                        reported_power = powered;
+                        powered
+                    };
+                    answer(&mut seq, session, c, &mut out, &last_vpr, shown, attached);
                     next_answer += period;
                     if next_answer < now {
                         next_answer = now + period;
@@ -368,6 +384,10 @@ fn run(
             }
             Frame::PowerRequest(_) if cfg.ignore_power_requests => {}
             Frame::PowerRequest(on) => {
+                if on != powered {
+                    reported_power = powered;
+                    lag_left = cfg.power_lag_answers;
+                }
                 powered = on;
                 reply = ack(session);
             }
@@ -397,9 +417,14 @@ fn run(
                     }
                 }
                 if !cfg.answer_every_period {
-                    answer(
-                        &mut seq, session, src, &mut out, &last_vpr, powered, attached,
-                    );
+                    let shown = if lag_left > 0 {
+                        lag_left -= 1;
+                        reported_power
+                    } else {
+                        reported_power = powered;
+                        powered
+                    };
+                    answer(&mut seq, session, src, &mut out, &last_vpr, shown, attached);
                 }
             }
             Frame::SetCommandType(t) => {

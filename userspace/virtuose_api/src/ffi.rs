@@ -3,8 +3,10 @@
 //!
 //! Every function returns 0 on success and -1 on error (virtOpen: NULL);
 //! the error is then available from `virtGetErrorCode` (VirtuoseAPI's
-//! `VIRT_E_*` codes) and `virtGetErrorMessage`. Errors are kept per calling
-//! thread. Float arrays: position `float[7]` (x, y, z, qx, qy, qz, qw),
+//! `VIRT_E_*` codes) and `virtGetErrorMessage`. As in Haption's library the
+//! code is kept per context (the result of the last call on it, 0 after a
+//! success); `virtGetErrorCode(NULL)` gives the calling thread's last one
+//! (after a failed `virtOpen`). Float arrays: position `float[7]` (x, y, z, qx, qy, qz, qw),
 //! speed and force `float[6]`.
 //!
 //! A context may be used from several threads at once (the application,
@@ -17,7 +19,7 @@ use std::cell::RefCell;
 use std::ffi::{c_char, c_float, c_int, c_uint, c_ushort, c_void, CStr, CString};
 use std::io::Write;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::thread::{JoinHandle, ThreadId};
 use std::time::{Duration, Instant};
@@ -27,7 +29,7 @@ use hap_core::fixed::Fx;
 use hap_core::protocol::{ERROR_NO_SESSION, ERROR_REFUSED};
 use hap_core::vp::{alarm, status};
 
-use crate::kin::{self, Frames};
+use crate::kin::{self, Frames, Offset};
 use crate::{CommandType, IndexingMode, VirtContext, VirtError};
 
 // ---- VirtuoseAPI.h values ----------------------------------------------
@@ -156,14 +158,24 @@ struct ApiState {
     command: c_int,
     indexing: c_int,
     frames: Frames,
+    /// The base frame as set (`frames.base` is normalized).
+    base_set: [f32; 7],
     observation: [f32; 7],
+    /// `virtSetObservationFrameSpeed`: the observation frame's twist.
+    observation_speed: [f32; 6],
     timeout_s: f32,
     force_cmd: [f32; 6],
     added_force: [f32; 6],
     saturation: (f32, f32),
     force_feedback: bool,
-    /// Mass of the attached virtual object (VIRTMECH stiffness cap).
-    vo_mass: Option<f32>,
+    attachment: Attachment,
+    /// The virtual object's pose last given by virtSetPosition (the
+    /// application's frame) and its twist (virtSetSpeed).
+    object_pose: Option<[f32; 7]>,
+    object_speed: [f32; 6],
+    shift: Shift,
+    /// The indexing offset of the forced shifts (virtForceShiftButton).
+    shift_offset: Offset,
     last_q: Option<[f64; 6]>,
     debug_flags: c_ushort,
     output_file: Option<PathBuf>,
@@ -178,7 +190,9 @@ impl Default for ApiState {
             command: COMMAND_TYPE_NONE,
             indexing: 0,
             frames: Frames::default(),
+            base_set: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
             observation: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            observation_speed: [0.0; 6],
             timeout_s: 1.0,
             force_cmd: [0.0; 6],
             added_force: [0.0; 6],
@@ -187,13 +201,64 @@ impl Default for ApiState {
                 hap_core::control::MAX_TORQUE.to_f64() as f32,
             ),
             force_feedback: true,
-            vo_mass: None,
+            attachment: Attachment::None,
+            object_pose: None,
+            object_speed: [0.0; 6],
+            shift: Shift::Released,
+            shift_offset: Offset::default(),
             last_q: None,
             debug_flags: 0,
             output_file: None,
             traj_step: 0.01,
             periodic: None,
         }
+    }
+}
+
+/// What is attached to the handle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Attachment {
+    None,
+    /// A virtual object the application simulates (virtAttachVO): its mass
+    /// caps the controller's stiffness in VIRTMECH.
+    Object {
+        mass: f32,
+    },
+    /// A quasi-static virtual object (virtAttachQSVO): stiffnesses and
+    /// dampings, rotations then translations (client units).
+    QuasiStatic {
+        ks: [f32; 6],
+        bs: [f32; 6],
+    },
+}
+
+/// The shift (indexing) button as forced by virtForceShiftButton.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Shift {
+    Released,
+    /// Forced since the avatar was at `frozen` (None: INDEXING_NONE, the
+    /// shift moves nothing).
+    Forced {
+        frozen: Option<[f32; 7]>,
+    },
+}
+
+impl ApiState {
+    /// Mass of an attached virtual object (the VIRTMECH stiffness cap).
+    fn vo_mass(&self) -> Option<f32> {
+        match self.attachment {
+            Attachment::Object { mass } => Some(mass),
+            _ => None,
+        }
+    }
+
+    fn shift_forced(&self) -> bool {
+        matches!(self.shift, Shift::Forced { .. })
+    }
+
+    /// The indexing mode moves the orientation too (INDEXING_ALL*).
+    fn indexes_rotation(&self) -> bool {
+        matches!(self.indexing, 0 | 3)
     }
 }
 
@@ -237,6 +302,8 @@ pub struct VirtContextS {
     recorder: Mutex<Option<Worker>>,
     overrun_latched: AtomicBool,
     overruns: AtomicU32,
+    /// VIRT_E_* code of the last call on this context (0: it succeeded).
+    last_error: AtomicI32,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -334,21 +401,111 @@ impl VirtContextS {
     /// The translational coupling (stiffness N/m, damping N·s/m) in the
     /// client's units (force factor, speed factor), as the controller
     /// applies it in the current command type.
+    ///
+    /// With a quasi-static object (virtAttachQSVO) in VIRTMECH: the mean of
+    /// its three translational stiffnesses and dampings, each at most the
+    /// controller's.
     fn simulation_coupling(&self) -> (f64, f64) {
-        let (frames, cmd, mass, ts) = {
+        let (frames, cmd, attachment, ts) = {
             let st = self.state();
-            (st.frames, st.command, st.vo_mass, st.time_step)
+            (st.frames, st.command, st.attachment, st.time_step)
         };
         let vc = self.session();
-        let mass = if cmd == COMMAND_TYPE_VIRTMECH {
-            mass
-        } else {
-            None
+        let virtmech = cmd == COMMAND_TYPE_VIRTMECH;
+        let mass = match attachment {
+            Attachment::Object { mass } if virtmech => Some(mass),
+            _ => None,
         };
         let (k, _) = self.gains(&vc, mass, ts);
         let b = Self::period_gains(&vc).b_lin.to_f64();
         let scale = frames.force_factor / frames.speed_factor;
-        (k * scale, b * scale)
+        let (k, b) = (k * scale, b * scale);
+        match attachment {
+            Attachment::QuasiStatic { ks, bs } if virtmech => {
+                let mean =
+                    |v: &[f32], cap: f64| v.iter().map(|x| (*x as f64).min(cap)).sum::<f64>() / 3.0;
+                (mean(&ks[3..6], k), mean(&bs[3..6], b))
+            }
+            _ => (k, b),
+        }
+    }
+
+    /// The handle as the application sees it (virtGetAvatarPosition): the
+    /// controller's pose (its indexing offset and the speed factor applied)
+    /// with the offset of the forced shifts; while a shift is forced, the
+    /// avatar stays where it was (its orientation follows the handle in
+    /// the translation-only indexing modes).
+    fn avatar(&self) -> R<[f32; 7]> {
+        let handle = self.read(|v| v.get_position())?;
+        let st = self.state();
+        let shown = st.shift_offset.apply(&handle);
+        Ok(match st.shift {
+            Shift::Forced {
+                frozen: Some(frozen),
+            } => {
+                if st.indexes_rotation() {
+                    frozen
+                } else {
+                    let mut a = shown;
+                    a[..3].copy_from_slice(&frozen[..3]);
+                    a
+                }
+            }
+            _ => shown,
+        })
+    }
+
+    /// A quasi-static object (virtAttachQSVO) in VIRTMECH: stream the
+    /// set-point that makes the controller's spring apply the object's
+    /// stiffness towards its pose (`kin::qsvo_setpoint`), with the twist
+    /// that makes its damper apply the object's damping. Nothing while a
+    /// shift is forced or before the application gave a pose.
+    fn stream_qsvo(&self) -> R<()> {
+        let (ks, bs, target, target_speed, frames, offset) = {
+            let st = self.state();
+            let Attachment::QuasiStatic { ks, bs } = st.attachment else {
+                return Ok(());
+            };
+            if st.command != COMMAND_TYPE_VIRTMECH || st.shift_forced() {
+                return Ok(());
+            }
+            let Some(target) = st.object_pose else {
+                return Ok(());
+            };
+            (ks, bs, target, st.object_speed, st.frames, st.shift_offset)
+        };
+        let handle = self.read(|v| v.get_position())?;
+        let twist = self.read(|v| v.get_speed()).unwrap_or([0.0; 6]);
+        let vc = self.session();
+        let g = Self::period_gains(&vc);
+        let (ff, sf) = (frames.force_factor, frames.speed_factor);
+        // The controller's gains in client units: F = ff·F_arm, x = sf·x_arm,
+        // τ = ff·sf·τ_arm.
+        let lin = ff / sf;
+        let rot = ff * sf;
+        let ratio = |want: f32, have: f64| if have > 0.0 { want as f64 / have } else { 0.0 };
+        let mut s_lin = [0.0; 3];
+        let mut s_rot = [0.0; 3];
+        let mut out_twist = twist;
+        for i in 0..3 {
+            s_rot[i] = ratio(ks[i], g.k_rot.to_f64() * rot);
+            s_lin[i] = ratio(ks[3 + i], g.k_lin.to_f64() * lin);
+            let b_rot = ratio(bs[i], g.b_rot.to_f64() * rot).clamp(0.0, 1.0);
+            let b_lin = ratio(bs[3 + i], g.b_lin.to_f64() * lin).clamp(0.0, 1.0);
+            out_twist[i] = (twist[i] as f64 + b_lin * (target_speed[i] - twist[i]) as f64) as f32;
+            out_twist[3 + i] =
+                (twist[3 + i] as f64 + b_rot * (target_speed[3 + i] - twist[3 + i]) as f64) as f32;
+        }
+        let setpoint = kin::qsvo_setpoint(&handle, &offset.remove(&target), s_lin, s_rot);
+        vc.set_speed(&out_twist)?;
+        vc.set_position(&setpoint)?;
+        Ok(())
+    }
+
+    /// What the callback loop streams after each call.
+    fn stream_after_callback(&self) -> R<()> {
+        self.stream_force()?;
+        self.stream_qsvo()
     }
 
     /// COMMAND_TYPE_IMPEDANCE: stream the coupling set-point that applies
@@ -356,7 +513,7 @@ impl VirtContextS {
     fn stream_force(&self) -> R<()> {
         let (frames, wrench, sat, ts) = {
             let st = self.state();
-            if st.command != COMMAND_TYPE_IMPEDANCE || !st.force_feedback {
+            if st.command != COMMAND_TYPE_IMPEDANCE || !st.force_feedback || st.shift_forced() {
                 return Ok(());
             }
             let mut w = st.force_cmd;
@@ -408,7 +565,17 @@ unsafe fn ctx<'a>(vc: *mut c_void) -> R<&'a VirtContextS> {
 /// `vc` is NULL or a live pointer from `virtOpen`.
 unsafe fn run(vc: *mut c_void, f: impl FnOnce(&VirtContextS) -> R<()>) -> c_int {
     // SAFETY: per the caller's contract.
-    status_of(unsafe { ctx(vc) }.and_then(f))
+    match unsafe { ctx(vc) } {
+        Ok(c) => {
+            let r = f(c);
+            c.last_error.store(
+                r.as_ref().err().map(|e| e.code).unwrap_or(0),
+                Ordering::SeqCst,
+            );
+            status_of(r)
+        }
+        Err(e) => status_of(Err(e)),
+    }
 }
 
 /// # Safety
@@ -518,6 +685,7 @@ pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut c_void {
                 recorder: Mutex::new(None),
                 overrun_latched: AtomicBool::new(false),
                 overruns: AtomicU32::new(0),
+                last_error: AtomicI32::new(0),
             });
             Box::into_raw(b) as *mut c_void
         }
@@ -549,10 +717,15 @@ pub unsafe extern "C" fn virtClose(vc: *mut c_void) -> c_int {
         .map(|w| w.as_ref().map(|w| w.id) == Some(std::thread::current().id()))
         .unwrap_or(false);
     if in_callback {
-        return status_of(Err(ApiError::new(
-            VIRT_E_CALL_TIME,
-            "virtClose from the periodic callback: call virtStopLoop there, virtClose after",
-        )));
+        // SAFETY: as above.
+        return unsafe {
+            run(vc, |_| {
+                Err(ApiError::new(
+                    VIRT_E_CALL_TIME,
+                    "virtClose from the periodic callback: call virtStopLoop there, virtClose after",
+                ))
+            })
+        };
     }
     // SAFETY: live pointer from Box::into_raw, per the contract.
     let b = unsafe { Box::from_raw(vc as *mut VirtContextS) };
@@ -608,20 +781,29 @@ pub unsafe extern "C" fn virtGetDeviceID(
     }
 }
 
-/// Code of the last error of the calling thread (0: none). `vc` may be NULL
+/// Code of the last call on the context `vc` (0: it succeeded), whichever
+/// thread made it; with `vc` NULL, of the calling thread's last call
 /// (needed after a failed virtOpen).
-#[no_mangle]
-pub extern "C" fn virtGetErrorCode(_vc: *mut c_void) -> c_int {
-    LAST.with(|l| l.borrow().0)
-}
-
-/// The calling thread's last error code in `*error`.
 ///
 /// # Safety
-/// `error` is NULL or writable.
+/// `vc` is NULL or a live pointer from `virtOpen`.
 #[no_mangle]
-pub unsafe extern "C" fn virtGetError(_vc: *mut c_void, error: *mut c_int) -> c_int {
-    let code = LAST.with(|l| l.borrow().0);
+pub unsafe extern "C" fn virtGetErrorCode(vc: *mut c_void) -> c_int {
+    // SAFETY: per the contract.
+    match unsafe { (vc as *const VirtContextS).as_ref() } {
+        Some(c) => c.last_error.load(Ordering::SeqCst),
+        None => LAST.with(|l| l.borrow().0),
+    }
+}
+
+/// `virtGetErrorCode(vc)` in `*error`.
+///
+/// # Safety
+/// `vc` is NULL or live; `error` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtGetError(vc: *mut c_void, error: *mut c_int) -> c_int {
+    // SAFETY: per the contract.
+    let code = unsafe { virtGetErrorCode(vc) };
     // SAFETY: per the contract.
     match unsafe { error.as_mut() } {
         Some(p) => {
@@ -842,7 +1024,10 @@ pub unsafe extern "C" fn virtSetCommandType(vc: *mut c_void, ty: c_int) -> c_int
     unsafe {
         run(vc, |c| {
             let t = hap_command(ty)?;
-            let enabled = c.state().force_feedback;
+            let enabled = {
+                let st = c.state();
+                st.force_feedback && !st.shift_forced()
+            };
             if enabled {
                 c.session().set_command_type(t)?;
             }
@@ -966,18 +1151,23 @@ pub unsafe extern "C" fn virtSetBaseFrame(vc: *mut c_void, pos: *const c_float) 
         run(vc, |c| {
             let p = read_arr::<7>(pos)?;
             c.session().set_base_frame(&p)?;
-            c.state().frames.base = normalized(p);
+            let mut st = c.state();
+            st.frames.base = normalized(p);
+            st.base_set = p;
             Ok(())
         })
     }
 }
 
+/// The base frame as set (the library computes with its quaternion
+/// normalized).
+///
 /// # Safety
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetBaseFrame(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
-    unsafe { run(vc, |c| write_arr(pos, c.state().frames.base)) }
+    unsafe { run(vc, |c| write_arr(pos, c.state().base_set)) }
 }
 
 /// # Safety
@@ -989,18 +1179,44 @@ pub unsafe extern "C" fn virtSetObservationFrame(vc: *mut c_void, pos: *const c_
         run(vc, |c| {
             let p = read_arr::<7>(pos)?;
             c.session().set_observation_frame(&p)?;
-            c.state().observation = normalized(p);
+            c.state().observation = p;
             Ok(())
         })
     }
 }
 
+/// The observation frame as set.
+///
 /// # Safety
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetObservationFrame(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe { run(vc, |c| write_arr(pos, c.state().observation)) }
+}
+
+/// The observation frame's twist `float[6]` (vx, vy, vz, wx, wy, wz in the
+/// world frame), checked (finite) and kept with the observation frame:
+/// hapticctrl's controller holds the observation frame where the last
+/// virtSetObservationFrame put it (an application whose observer moves
+/// sets the frame again as it moves).
+///
+/// # Safety
+/// `vc` is NULL or live; `speed` is NULL or points to 6 floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtSetObservationFrameSpeed(
+    vc: *mut c_void,
+    speed: *const c_float,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let v = read_arr::<6>(speed)?;
+            finite("observation frame speed", &v)?;
+            c.state().observation_speed = v;
+            Ok(())
+        })
+    }
 }
 
 /// 6 joints.
@@ -1114,18 +1330,21 @@ pub unsafe extern "C" fn virtIsInBounds(vc: *mut c_void, bounds: *mut c_uint) ->
     unsafe { run(vc, |c| put(bounds, kin::bounds(&c.joints()?))) }
 }
 
-fn button_bit(n: c_int) -> R<u32> {
+/// The status bit of a button of the handle, as Haption's applications
+/// number them: 1 the first button (the shift, i.e. indexing, button), 2
+/// the second; 0 is the first button too. None: the handle has no such
+/// button.
+pub fn button_bit(n: c_int) -> Option<u32> {
     match n {
-        0 => Ok(status::BUTTON_1),
-        1 => Ok(status::BUTTON_2),
-        n => Err(ApiError::new(
-            VIRT_E_INCORRECT_VALUE,
-            format!("button {n} (the handle has buttons 0 and 1)"),
-        )),
+        0 | 1 => Some(status::BUTTON_1),
+        2 => Some(status::BUTTON_2),
+        _ => None,
     }
 }
 
-/// Button 0 (indexing) or 1: 1 while pressed.
+/// Button `n` (1: the handle's first button, the shift/indexing one; 2:
+/// its second; 0: the first): 1 while pressed. Any other number reads 0
+/// (a button the handle does not have is never pressed), without error.
 ///
 /// # Safety
 /// `vc` is NULL or live; `state` is NULL or writable.
@@ -1134,14 +1353,98 @@ pub unsafe extern "C" fn virtGetButton(vc: *mut c_void, n: c_int, state: *mut c_
     // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
-            let bit = button_bit(n)?;
-            let s = c.read(|v| v.get_status())?;
-            put(state, (s & bit != 0) as c_int)
+            if state.is_null() {
+                return Err(ApiError::null());
+            }
+            let pressed = match button_bit(n) {
+                Some(bit) => c.read(|v| v.get_status())? & bit != 0,
+                None => false,
+            };
+            put(state, pressed as c_int)
         })
     }
 }
 
-/// Block until button `n` is pressed. Fails with VIRT_E_TIME_OUT if the
+/// 1 while the shift (indexing) button is down: the handle's first button
+/// pressed, or forced by virtForceShiftButton(1).
+///
+/// # Safety
+/// `vc` is NULL or live; `shift` is NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn virtIsInShiftPosition(vc: *mut c_void, shift: *mut c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            if shift.is_null() {
+                return Err(ApiError::null());
+            }
+            let pressed = c.read(|v| v.get_status())? & status::BUTTON_1 != 0;
+            let forced = c.state().shift_forced();
+            put(shift, (pressed || forced) as c_int)
+        })
+    }
+}
+
+/// 1: the application holds the shift (indexing) button down, 0: releases
+/// it. The controller does not know of it: the library indexes. While
+/// forced the avatar stays where it was (its position; in INDEXING_ALL*
+/// its orientation too) and the controller is uncoupled (command type
+/// NONE, force feedback inhibited); on release the offset between the
+/// avatar and the handle is kept, so the avatar moves on from where it
+/// stayed (virtGetPosition, virtGetAvatarPosition, and virtSetPosition's
+/// poses back). In INDEXING_NONE it only shows in virtIsInShiftPosition.
+///
+/// # Safety
+/// `vc` is NULL or a live pointer from `virtOpen`.
+#[no_mangle]
+pub unsafe extern "C" fn virtForceShiftButton(vc: *mut c_void, force_shift: c_int) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let (shift, indexing, command, enabled) = {
+                let st = c.state();
+                (st.shift, st.indexing, st.command, st.force_feedback)
+            };
+            let moves = indexing != 2;
+            match (force_shift != 0, shift) {
+                (true, Shift::Released) => {
+                    let frozen = if moves { Some(c.avatar()?) } else { None };
+                    if moves && enabled {
+                        c.session().set_command_type(CommandType::None)?;
+                    }
+                    c.state().shift = Shift::Forced { frozen };
+                }
+                (false, Shift::Forced { frozen }) => {
+                    if let Some(frozen) = frozen {
+                        let handle = c.read(|v| v.get_position())?;
+                        if enabled {
+                            c.session().set_command_type(hap_command(command)?)?;
+                        }
+                        let mut st = c.state();
+                        let rot = st.indexes_rotation();
+                        let shown = st.shift_offset.apply(&handle);
+                        // In the translation-only modes the orientation
+                        // followed the handle: only the position offset moves.
+                        let avatar = if rot {
+                            frozen
+                        } else {
+                            let mut a = shown;
+                            a[..3].copy_from_slice(&frozen[..3]);
+                            a
+                        };
+                        st.shift_offset = st.shift_offset.between(&avatar, &handle, rot);
+                    }
+                    c.state().shift = Shift::Released;
+                }
+                _ => {}
+            }
+            Ok(())
+        })
+    }
+}
+
+/// Block until button `n` (numbered as in virtGetButton) is pressed; a
+/// button the handle does not have is an error (VIRT_E_INCORRECT_VALUE). Fails with VIRT_E_TIME_OUT if the
 /// controller stops answering for the time-out value.
 ///
 /// # Safety
@@ -1151,7 +1454,12 @@ pub unsafe extern "C" fn virtWaitPressButton(vc: *mut c_void, n: c_int) -> c_int
     // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
-            let bit = button_bit(n)?;
+            let bit = button_bit(n).ok_or_else(|| {
+                ApiError::new(
+                    VIRT_E_INCORRECT_VALUE,
+                    format!("button {n}: the handle has buttons 1 and 2 (0: the first)"),
+                )
+            })?;
             let timeout = Duration::from_secs_f32(c.state().timeout_s);
             loop {
                 let s = c.read(|v| v.get_status())?;
@@ -1189,7 +1497,57 @@ pub unsafe extern "C" fn virtAttachVO(
         run(vc, |c| {
             let i = read_arr::<3>(mxmymz)?;
             c.session().attach_vo(mass, i)?;
-            c.state().vo_mass = Some(mass);
+            c.state().attachment = Attachment::Object { mass };
+            Ok(())
+        })
+    }
+}
+
+/// Attach a quasi-static virtual object: an object without dynamics that
+/// the application places (VIRTMECH: virtSetPosition, virtSetSpeed) and
+/// the handle is coupled to as to an impedance set-point, with the
+/// stiffnesses `Ks` and dampings `Bs` (`float[6]` each, rotations then
+/// translations as in Haption's applications: N·m/rad, N·m·s/rad, N/m,
+/// N·s/m, client units). The controller's spring and damper do the
+/// coupling: the library streams the set-point between the handle and
+/// the object that makes them apply `Ks·(object − handle)` and
+/// `Bs·(object speed − handle speed)` per axis (`kin::qsvo_setpoint`),
+/// each at most the controller's own gain for its servo period (its
+/// limits, saturation and passivity observer act as on any coupling).
+/// Outside the callback loop virtSetPosition streams it at once; in the
+/// loop it is streamed after each call. virtGetForce reads the coupling
+/// wrench on the object, virtGetPosition the object's pose.
+///
+/// # Safety
+/// `vc` is NULL or live; `ks` and `bs` are NULL or point to 6 floats.
+#[no_mangle]
+pub unsafe extern "C" fn virtAttachQSVO(
+    vc: *mut c_void,
+    ks: *const c_float,
+    bs: *const c_float,
+) -> c_int {
+    // SAFETY: the pointers are as this function's `# Safety` requires.
+    unsafe {
+        run(vc, |c| {
+            let ks = read_arr::<6>(ks)?;
+            let bs = read_arr::<6>(bs)?;
+            finite("stiffness", &ks)?;
+            finite("damping", &bs)?;
+            if ks.iter().chain(bs.iter()).any(|v| *v < 0.0) {
+                return Err(ApiError::new(
+                    VIRT_E_INCORRECT_VALUE,
+                    "stiffness and damping must be >= 0",
+                ));
+            }
+            let ts = c.state().time_step;
+            let vc = c.session();
+            // A mass whose VIRTMECH cap (m / ts²) stays above the
+            // controller's stiffness: the object has no dynamics.
+            let k = VirtContextS::period_gains(&vc).k_lin.to_f64();
+            let mass = (2.0 * k * (ts as f64) * (ts as f64)).max(1e-6) as f32;
+            vc.attach_vo(mass, [0.0; 3])?;
+            drop(vc);
+            c.state().attachment = Attachment::QuasiStatic { ks, bs };
             Ok(())
         })
     }
@@ -1217,7 +1575,9 @@ pub unsafe extern "C" fn virtDetachVO(vc: *mut c_void) -> c_int {
     unsafe {
         run(vc, |c| {
             c.session().detach_vo()?;
-            c.state().vo_mass = None;
+            let mut st = c.state();
+            st.attachment = Attachment::None;
+            st.object_pose = None;
             Ok(())
         })
     }
@@ -1234,7 +1594,10 @@ pub unsafe extern "C" fn virtDetachVOAvatar(vc: *mut c_void) -> c_int {
 }
 
 /// Stream the virtual object's pose (one frame with the last speed); the
-/// force of virtAddForce, if any, is added to the coupling.
+/// force of virtAddForce, if any, is added to the coupling. With a
+/// quasi-static object (virtAttachQSVO), its set-point instead (from the
+/// callback loop: after the call). The pose is the application's (the
+/// offset of forced shifts is taken off before it is sent).
 ///
 /// # Safety
 /// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
@@ -1243,18 +1606,28 @@ pub unsafe extern "C" fn virtSetPosition(vc: *mut c_void, pos: *const c_float) -
     // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
-            let p = read_arr::<7>(pos)?;
-            finite("position", &p)?;
-            let (frames, added, sat, mass, ts) = {
-                let st = c.state();
+            let given = read_arr::<7>(pos)?;
+            finite("position", &given)?;
+            let (frames, added, sat, mass, ts, quasi_static, p) = {
+                let mut st = c.state();
+                st.object_pose = Some(given);
                 (
                     st.frames,
                     st.added_force,
                     st.saturation,
-                    st.vo_mass,
+                    st.vo_mass(),
                     st.time_step,
+                    matches!(st.attachment, Attachment::QuasiStatic { .. }),
+                    st.shift_offset.remove(&given),
                 )
             };
+            if quasi_static {
+                return if c.loop_running() {
+                    Ok(())
+                } else {
+                    c.stream_qsvo()
+                };
+            }
             let vc = c.session();
             let target = if added.iter().any(|v| *v != 0.0) {
                 let (k_lin, k_rot) = c.gains(&vc, mass, ts);
@@ -1275,7 +1648,14 @@ pub unsafe extern "C" fn virtSetPosition(vc: *mut c_void, pos: *const c_float) -
 #[no_mangle]
 pub unsafe extern "C" fn virtSetSpeed(vc: *mut c_void, speed: *const c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
-    unsafe { run(vc, |c| Ok(c.session().set_speed(&read_arr::<6>(speed)?)?)) }
+    unsafe {
+        run(vc, |c| {
+            let v = read_arr::<6>(speed)?;
+            c.session().set_speed(&v)?;
+            c.state().object_speed = v;
+            Ok(())
+        })
+    }
 }
 
 /// COMMAND_TYPE_IMPEDANCE: the wrench (world frame, N and N·m) the arm
@@ -1372,13 +1752,19 @@ pub unsafe extern "C" fn virtEnableForceFeedback(vc: *mut c_void, enable: c_int)
     // SAFETY: the pointers are as this function's `# Safety` requires.
     unsafe {
         run(vc, |c| {
-            let cmd = c.state().command;
+            let (cmd, forced) = {
+                let st = c.state();
+                (st.command, st.shift_forced())
+            };
             let t = if enable != 0 {
                 hap_command(cmd)?
             } else {
                 CommandType::None
             };
-            c.session().set_command_type(t)?;
+            // (A forced shift keeps the controller uncoupled until released.)
+            if !forced {
+                c.session().set_command_type(t)?;
+            }
             c.state().force_feedback = enable != 0;
             Ok(())
         })
@@ -1412,25 +1798,58 @@ pub unsafe extern "C" fn virtGetSimulationDamping(vc: *mut c_void, damping: *mut
     unsafe { run(vc, |c| put(damping, c.simulation_coupling().1 as f32)) }
 }
 
-/// Handle pose, `float[7]`, world frame.
+/// The pose of the Virtuose or of the object attached to it, `float[7]`,
+/// world frame: in VIRTMECH with an object attached (virtAttachVO,
+/// virtAttachQSVO), the object's pose as last given by virtSetPosition;
+/// otherwise the avatar (virtGetAvatarPosition).
 ///
 /// # Safety
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
-    unsafe { run(vc, |c| write_arr(pos, c.read(|v| v.get_position())?)) }
+    unsafe {
+        run(vc, |c| {
+            if pos.is_null() {
+                return Err(ApiError::null());
+            }
+            let object = {
+                let st = c.state();
+                match (st.command, st.attachment, st.object_pose) {
+                    (
+                        COMMAND_TYPE_VIRTMECH,
+                        Attachment::Object { .. } | Attachment::QuasiStatic { .. },
+                        Some(p),
+                    ) => Some(p),
+                    _ => None,
+                }
+            };
+            match object {
+                Some(p) => write_arr(pos, p),
+                None => write_arr(pos, c.avatar()?),
+            }
+        })
+    }
 }
 
-/// The handle as the application sees it (indexing and factors applied):
-/// the same pose as virtGetPosition.
+/// The handle (the end-effector, never the attached object) as the
+/// application sees it, `float[7]`, world frame: the indexing offset and
+/// the speed (motor scale) factor applied, with the offset of forced
+/// shifts (virtForceShiftButton).
 ///
 /// # Safety
 /// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetAvatarPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
-    unsafe { virtGetPosition(vc, pos) }
+    unsafe {
+        run(vc, |c| {
+            if pos.is_null() {
+                return Err(ApiError::null());
+            }
+            write_arr(pos, c.avatar()?)
+        })
+    }
 }
 
 /// Handle pose in the arm base frame, arm units.
@@ -1592,7 +2011,7 @@ fn cycle_reached(a: u32, b: u32) -> bool {
 /// controller serves, not faster: a controller slower than its nominal
 /// period (emulation, a loaded host) is not flooded with set-points it
 /// cannot use. After each call, in COMMAND_TYPE_IMPEDANCE, the force command
-/// is streamed. A call (with the streaming) that ends when the controller
+/// is streamed, and with a quasi-static object in VIRTMECH its set-point. A call (with the streaming) that ends when the controller
 /// has already reached the next call's cycle is an overrun: latched in
 /// `VIRT_ALARM_CALLBACK_OVERRUN`, counted, and the missed periods skipped.
 /// Without answers (link lost), the function is not called.
@@ -1624,7 +2043,8 @@ fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
         // SAFETY: f and arg are the application's, valid per
         // virtSetPeriodicFunction's contract.
         unsafe { (a.f)(a.ctx as *mut c_void, a.arg as *mut c_void) };
-        if let Err(e) = c.stream_force() {
+        if let Err(e) = c.stream_after_callback() {
+            c.last_error.store(e.code, Ordering::SeqCst);
             set_error(&e);
         }
         let mut next = cycle.wrapping_add(step);
@@ -1971,11 +2391,20 @@ pub unsafe extern "C" fn virtGetLinkStats(
 macro_rules! not_implemented {
     ($( $name:ident ( $($arg:ident : $ty:ty),* ) ; )*) => {
         $(
-            /// Not implemented by hapticctrl: fails with VIRT_E_NOT_IMPLEMENTED.
+            /// Not implemented by hapticctrl: fails with VIRT_E_NOT_IMPLEMENTED
+            /// (the context's code too, when `vc` is a context).
+            ///
+            /// # Safety
+            /// `vc` is NULL or a live pointer from `virtOpen`.
             #[no_mangle]
-            pub extern "C" fn $name(_vc: *mut c_void $(, $arg: $ty)*) -> c_int {
+            pub unsafe extern "C" fn $name(vc: *mut c_void $(, $arg: $ty)*) -> c_int {
                 $( let _ = $arg; )*
-                status_of(Err(ApiError::not_implemented(stringify!($name))))
+                let e = ApiError::not_implemented(stringify!($name));
+                // SAFETY: per the contract.
+                if let Some(c) = unsafe { (vc as *const VirtContextS).as_ref() } {
+                    c.last_error.store(e.code, Ordering::SeqCst);
+                }
+                status_of(Err(e))
             }
         )*
     };
@@ -1983,12 +2412,8 @@ macro_rules! not_implemented {
 
 not_implemented! {
     virtDisableControlConnexion(disable: c_int);
-    virtSetObservationFrameSpeed(speed: *const c_float);
     virtSetCatchFrame(frame: *const c_float);
     virtGetCatchFrame(frame: *mut c_float);
-    virtForceShiftButton(force_shift: c_int);
-    virtIsInShiftPosition(shift: *mut c_int);
-    virtAttachQSVO(ks: *const c_float, bs: *const c_float);
     virtSetArticularPosition(pos: *const c_float);
     virtSetArticularSpeed(speed: *const c_float);
     virtSetArticularForce(force: *const c_float);
@@ -2096,11 +2521,14 @@ mod tests {
 
     #[test]
     fn not_implemented_functions_say_so() {
-        assert_eq!(virtVmActivate(std::ptr::null_mut()), -1);
-        assert_eq!(
-            virtGetErrorCode(std::ptr::null_mut()),
-            VIRT_E_NOT_IMPLEMENTED
-        );
+        // SAFETY: NULL contexts.
+        unsafe {
+            assert_eq!(virtVmActivate(std::ptr::null_mut()), -1);
+            assert_eq!(
+                virtGetErrorCode(std::ptr::null_mut()),
+                VIRT_E_NOT_IMPLEMENTED
+            );
+        }
         // SAFETY: the pointers are as this function's `# Safety` requires.
         let msg = unsafe { CStr::from_ptr(virtGetErrorMessage(VIRT_E_NOT_IMPLEMENTED)) };
         assert!(msg.to_str().unwrap().contains("virtVmActivate"));

@@ -461,6 +461,125 @@ pub fn joint_speeds(q: &[f64; 6], twist: &[f32; 6]) -> [f64; 6] {
     out
 }
 
+/// Rotation vector (axis × angle, rad, angle in [0, π]) of a unit quaternion.
+pub fn rotvec(q: &Quat) -> [f64; 3] {
+    let q = qnorm(q);
+    let q = if q[3] < 0.0 {
+        [-q[0], -q[1], -q[2], -q[3]]
+    } else {
+        q
+    };
+    let s = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+    if s < 1e-12 {
+        return [2.0 * q[0], 2.0 * q[1], 2.0 * q[2]];
+    }
+    let angle = 2.0 * s.atan2(q[3]);
+    [q[0] / s * angle, q[1] / s * angle, q[2] / s * angle]
+}
+
+/// Unit quaternion of a rotation vector (axis × angle, rad).
+pub fn from_rotvec(v: [f64; 3]) -> Quat {
+    let angle = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if angle < 1e-12 {
+        return qnorm(&[v[0] / 2.0, v[1] / 2.0, v[2] / 2.0, 1.0]);
+    }
+    let k = (angle / 2.0).sin() / angle;
+    [v[0] * k, v[1] * k, v[2] * k, (angle / 2.0).cos()]
+}
+
+/// An indexing offset kept by the library (`virtForceShiftButton`): the
+/// application sees `avatar = offset ∘ handle`, position `handle + dp`,
+/// orientation `dq ⊗ handle` (world frame).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Offset {
+    pub dp: [f64; 3],
+    pub dq: Quat,
+}
+
+impl Default for Offset {
+    fn default() -> Self {
+        Offset {
+            dp: [0.0; 3],
+            dq: [0.0, 0.0, 0.0, 1.0],
+        }
+    }
+}
+
+impl Offset {
+    /// The controller's handle pose → the application's.
+    pub fn apply(&self, p: &[f32; 7]) -> [f32; 7] {
+        let q = qnorm(&qmul(&self.dq, &q7(p)));
+        [
+            (p[0] as f64 + self.dp[0]) as f32,
+            (p[1] as f64 + self.dp[1]) as f32,
+            (p[2] as f64 + self.dp[2]) as f32,
+            q[0] as f32,
+            q[1] as f32,
+            q[2] as f32,
+            q[3] as f32,
+        ]
+    }
+
+    /// The application's pose → the controller's (inverse of `apply`).
+    pub fn remove(&self, p: &[f32; 7]) -> [f32; 7] {
+        let q = qnorm(&qmul(&qconj(&self.dq), &q7(p)));
+        [
+            (p[0] as f64 - self.dp[0]) as f32,
+            (p[1] as f64 - self.dp[1]) as f32,
+            (p[2] as f64 - self.dp[2]) as f32,
+            q[0] as f32,
+            q[1] as f32,
+            q[2] as f32,
+            q[3] as f32,
+        ]
+    }
+
+    /// The offset that shows `handle` as `avatar`: translation always, the
+    /// rotation too when `rotation`, else the rotation of `self` is kept.
+    pub fn between(&self, avatar: &[f32; 7], handle: &[f32; 7], rotation: bool) -> Offset {
+        let mut o = *self;
+        for i in 0..3 {
+            o.dp[i] = avatar[i] as f64 - handle[i] as f64;
+        }
+        if rotation {
+            o.dq = qnorm(&qmul(&q7(avatar), &qconj(&q7(handle))));
+        }
+        o
+    }
+}
+
+/// The coupling set-point of a quasi-static virtual object
+/// (`virtAttachQSVO`): the controller's spring (stiffness K per axis)
+/// pulled to a point between the handle and the object's `target`, at the
+/// fraction `s = Ks / K` (each in [0, 1]) of the way, applies
+/// `Ks·(target − handle)` on each translation axis and, on each axis of
+/// the rotation vector from the handle's orientation to the target's,
+/// `s_rot·K_rot` times that angle (for small angles: `Ks_rot·angle`).
+pub fn qsvo_setpoint(
+    handle: &[f32; 7],
+    target: &[f32; 7],
+    s_lin: [f64; 3],
+    s_rot: [f64; 3],
+) -> [f32; 7] {
+    let mut out = *handle;
+    for i in 0..3 {
+        let s = s_lin[i].clamp(0.0, 1.0);
+        out[i] = (handle[i] as f64 + s * (target[i] as f64 - handle[i] as f64)) as f32;
+    }
+    let qh = q7(handle);
+    let e = rotvec(&qmul(&q7(target), &qconj(&qh)));
+    let scaled = [
+        e[0] * s_rot[0].clamp(0.0, 1.0),
+        e[1] * s_rot[1].clamp(0.0, 1.0),
+        e[2] * s_rot[2].clamp(0.0, 1.0),
+    ];
+    let q = qnorm(&qmul(&from_rotvec(scaled), &qh));
+    for i in 0..4 {
+        out[3 + i] = q[i] as f32;
+    }
+    out
+}
+
 /// Margin to a joint limit under which `virtIsInBounds` reports it, rad.
 pub const BOUND_MARGIN_RAD: f64 = 0.02;
 
@@ -640,5 +759,62 @@ mod tests {
         let s = saturate(&[30.0, 40.0, 0.0, 0.0, 0.0, 1.0], 10.0, 0.5);
         assert!((s[0] - 6.0).abs() < 1e-5 && (s[1] - 8.0).abs() < 1e-5);
         assert!((s[5] - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn rotation_vectors_round_trip() {
+        for v in [
+            [0.3, -0.2, 0.1],
+            [0.0, 0.0, 3.0],
+            [1e-9, 0.0, 0.0],
+            [0.0; 3],
+        ] {
+            let back = rotvec(&from_rotvec(v));
+            for i in 0..3 {
+                assert!((back[i] - v[i]).abs() < 1e-9, "{v:?} -> {back:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_offset_is_undone_by_its_removal_and_joins_two_poses() {
+        let s = std::f32::consts::FRAC_1_SQRT_2;
+        let handle = [0.4f32, 0.1, 0.2, 0.0, 0.0, s, s];
+        let avatar = [0.5f32, -0.1, 0.3, s, 0.0, 0.0, s];
+        let o = Offset::default().between(&avatar, &handle, true);
+        let shown = o.apply(&handle);
+        for i in 0..7 {
+            assert!((shown[i] - avatar[i]).abs() < 1e-6, "{shown:?}");
+        }
+        let back = o.remove(&shown);
+        for i in 0..7 {
+            assert!((back[i] - handle[i]).abs() < 1e-6, "{back:?}");
+        }
+        // Translation only: the rotation of the previous offset stays.
+        let t = o.between(&avatar, &[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], false);
+        assert_eq!(t.dq, o.dq);
+        assert!((t.dp[0] - 0.5).abs() < 1e-6);
+        assert_eq!(Offset::default().apply(&handle), handle);
+    }
+
+    #[test]
+    fn the_quasi_static_setpoint_scales_the_springs_pull() {
+        let h = [0.4f32, 0.0, 0.2, 0.0, 0.0, 0.0, 1.0];
+        // 0.2 rad about z.
+        let qz = from_rotvec([0.0, 0.0, 0.2]);
+        let t = [0.5f32, 0.1, 0.2, 0.0, 0.0, qz[2] as f32, qz[3] as f32];
+        // x at a quarter of the controller's stiffness, y above it (capped
+        // at 1), z 0; rotation about z at half.
+        let sp = qsvo_setpoint(&h, &t, [0.25, 3.0, 0.0], [0.0, 0.0, 0.5]);
+        assert!((sp[0] - 0.425).abs() < 1e-6, "{sp:?}");
+        assert!((sp[1] - 0.1).abs() < 1e-6, "{sp:?}");
+        assert!((sp[2] - 0.2).abs() < 1e-6, "{sp:?}");
+        let e = rotvec(&[sp[3] as f64, sp[4] as f64, sp[5] as f64, sp[6] as f64]);
+        assert!((e[2] - 0.1).abs() < 1e-6 && e[0].abs() < 1e-9, "{e:?}");
+        // Full stiffness: the set-point is the target.
+        let full = qsvo_setpoint(&h, &t, [1.0; 3], [1.0; 3]);
+        for i in 0..7 {
+            assert!((full[i] - t[i]).abs() < 1e-6, "{full:?}");
+        }
     }
 }

@@ -347,7 +347,20 @@ pub struct VirtContext {
     speed_factor: f32,
     /// The virtual object's twist, sent with the next set_position.
     speed: Mutex<Twist>,
+    /// The last power state acknowledged by the controller, until its
+    /// answers report it (read-your-writes for `get_power_on`).
+    power_set: Mutex<PowerSet>,
     closed: bool,
+}
+
+/// What `get_power_on` reports after a `set_power_on` the controller
+/// acknowledged.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum PowerSet {
+    /// Nothing pending: the answers' power bit.
+    Reported,
+    /// `on` was acknowledged at `at`; the answers do not show it yet.
+    Pending { on: bool, at: Instant },
 }
 
 /// Waits for the controller's answers ([`VirtContext::answer_waiter`]).
@@ -534,6 +547,7 @@ impl VirtContext {
             force_factor: 1.0,
             speed_factor: 1.0,
             speed: Mutex::new(Twist::default()),
+            power_set: Mutex::new(PowerSet::Reported),
             closed: false,
         };
         // OpenSession, retried until the SessionAck; each attempt waits
@@ -741,9 +755,25 @@ impl VirtContext {
         self.request(Frame::DetachVirtualObject)
     }
 
-    /// Arm supply power request (`virtSetPowerOn`).
+    /// Arm supply power request (`virtSetPowerOn`). Once the controller
+    /// acknowledged it, [`get_power_on`](Self::get_power_on) reads `on`
+    /// (see there).
     pub fn set_power_on(&self, on: bool) -> Result<()> {
-        self.request(Frame::PowerRequest(on))
+        self.request(Frame::PowerRequest(on))?;
+        *lock_poisoned(&self.power_set) = PowerSet::Pending {
+            on,
+            at: Instant::now(),
+        };
+        Ok(())
+    }
+
+    /// How long a power state acknowledged by the controller is reported
+    /// while its answers still show the other one: the time a request may
+    /// take (reply timeout × attempts).
+    fn power_settle(&self) -> Duration {
+        self.opts
+            .reply_timeout
+            .saturating_mul(self.opts.attempts.max(1))
     }
 
     /// Twist of the virtual object, `[vx,vy,vz,wx,wy,wz]`; sent with the
@@ -805,8 +835,27 @@ impl VirtContext {
         self.with_answer(|a, _| a.status)
     }
 
+    /// The arm's power. Read-your-writes: after a [`set_power_on`](Self::set_power_on)
+    /// the controller acknowledged, the value set until an answer reports
+    /// it (answers sent before the request took effect still show the old
+    /// state); from then on, or if no answer reports it within the time a
+    /// request may take (the power did not come on, e.g. the fail-safe
+    /// refused it), the answers' power bit.
     pub fn get_power_on(&self) -> Result<bool> {
-        self.with_answer(|a, _| a.status & status::POWER_ON != 0)
+        let reported = self.with_answer(|a, _| a.status & status::POWER_ON != 0)?;
+        let mut set = lock_poisoned(&self.power_set);
+        Ok(match *set {
+            PowerSet::Pending { on, at }
+                if on != reported && at.elapsed() < self.power_settle() =>
+            {
+                on
+            }
+            PowerSet::Pending { .. } => {
+                *set = PowerSet::Reported;
+                reported
+            }
+            PowerSet::Reported => reported,
+        })
     }
 
     pub fn get_dead_man(&self) -> Result<bool> {
@@ -1118,6 +1167,13 @@ fn on_answer(st: &mut State, a: Answer) {
         }
     }
     st.answer = Some(a);
+}
+
+fn lock_poisoned<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    match m.lock() {
+        Ok(g) => g,
+        Err(p) => p.into_inner(),
+    }
 }
 
 /// Names of the frame types (for logs).

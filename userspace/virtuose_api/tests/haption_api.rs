@@ -28,7 +28,7 @@ fn open(p: &FakePeer) -> *mut c_void {
     let addr = CString::new(p.address()).unwrap();
     // SAFETY: a NUL-terminated string.
     let vc = unsafe { virtOpen(addr.as_ptr()) };
-    assert!(!vc.is_null(), "virtOpen failed: {}", virtGetErrorCode(vc));
+    assert!(!vc.is_null(), "virtOpen failed: {}", code());
     vc
 }
 
@@ -38,8 +38,10 @@ fn k_lin() -> f64 {
         .to_f64()
 }
 
+/// The calling thread's last error code.
 fn code() -> c_int {
-    virtGetErrorCode(std::ptr::null_mut())
+    // SAFETY: NULL asks for the calling thread's code.
+    unsafe { virtGetErrorCode(std::ptr::null_mut()) }
 }
 
 #[test]
@@ -457,7 +459,9 @@ fn the_loop_runs_while_another_thread_waits_for_a_button() {
         // (The context outlives this thread: joined below.)
         let waiter = std::thread::spawn(move || {
             let r = virtWaitPressButton(addr as *mut c_void, 0);
-            (r, virtGetErrorCode(addr as *mut c_void))
+            // The thread's own code: the callback loop makes calls on the
+            // context meanwhile (the context's code is its last call's).
+            (r, code())
         });
         std::thread::sleep(Duration::from_millis(100));
         let (c0, a0) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
@@ -555,7 +559,9 @@ fn a_request_round_trip_does_not_stall_the_loop() {
         // (The context outlives this thread: joined below.)
         let requester = std::thread::spawn(move || {
             let r = virtSetPowerOn(addr as *mut c_void, 1);
-            (r, virtGetErrorCode(addr as *mut c_void))
+            // The thread's own code: the callback loop makes calls on the
+            // context meanwhile (the context's code is its last call's).
+            (r, code())
         });
         std::thread::sleep(Duration::from_millis(100));
         let (c0, a0) = (counter.calls.load(Ordering::SeqCst), p.stats().answers_sent);
@@ -702,7 +708,7 @@ fn status_reads_and_what_is_not_implemented() {
     let vc = open(&p);
     // SAFETY: vc is live; pointers valid.
     unsafe {
-        let (mut dm, mut es, mut pw, mut b) = (0, 0, 0, 7);
+        let (mut dm, mut es, mut pw) = (0, 0, 0);
         assert_eq!(virtSetPowerOn(vc, 1), 0);
         std::thread::sleep(Duration::from_millis(20));
         assert_eq!(virtGetPowerOn(vc, &mut pw), 0);
@@ -712,9 +718,12 @@ fn status_reads_and_what_is_not_implemented() {
         // VirtuoseAPI's meaning: 1 = operational (emergency stop released).
         assert_eq!(virtGetEmergencyStop(vc, &mut es), 0);
         assert_eq!(es, 1);
-        assert_eq!(virtGetButton(vc, 0, &mut b), 0);
-        assert_eq!(b, 0);
-        assert_eq!(virtGetButton(vc, 5, &mut b), -1);
+        for n in [-1, 0, 1, 2, 3, 5, 1000] {
+            let mut b = 7;
+            assert_eq!(virtGetButton(vc, n, &mut b), 0, "button {n}");
+            assert_eq!(b, 0, "button {n}");
+        }
+        assert_eq!(virtWaitPressButton(vc, 3), -1);
         assert_eq!(code(), VIRT_E_INCORRECT_VALUE);
         let mut fail: c_uint = 9;
         assert_eq!(virtGetFailure(vc, &mut fail), 0);
@@ -767,12 +776,19 @@ fn buttons_emergency_stop_and_failures_from_the_answers() {
     let vc = open(&p);
     // SAFETY: vc is live; pointers valid.
     unsafe {
-        let (mut b0, mut b1, mut es) = (7, 7, 7);
+        // The second button (hapticctrl's BUTTON_2) is pressed: Haption's
+        // button 2; 1 (and 0) are the first.
+        let (mut b0, mut b1, mut b2, mut b3, mut es) = (7, 7, 7, 7, 7);
         assert_eq!(virtGetButton(vc, 0, &mut b0), 0);
         assert_eq!(virtGetButton(vc, 1, &mut b1), 0);
-        assert_eq!((b0, b1), (0, 1));
-        // Button 1 is pressed: returns at once.
-        assert_eq!(virtWaitPressButton(vc, 1), 0);
+        assert_eq!(virtGetButton(vc, 2, &mut b2), 0);
+        assert_eq!(virtGetButton(vc, 3, &mut b3), 0);
+        assert_eq!((b0, b1, b2, b3), (0, 0, 1, 0));
+        let mut shift = 7;
+        assert_eq!(virtIsInShiftPosition(vc, &mut shift), 0);
+        assert_eq!(shift, 0);
+        // Button 2 is pressed: returns at once.
+        assert_eq!(virtWaitPressButton(vc, 2), 0);
         assert_eq!(virtGetEmergencyStop(vc, &mut es), 0);
         assert_eq!(es, 0, "pressed: not operational");
         let (mut fail, mut a): (c_uint, c_uint) = (0, 0);
@@ -791,6 +807,249 @@ fn buttons_emergency_stop_and_failures_from_the_answers() {
         assert_eq!(virtSetTimeoutValue(vc, 0.2), 0);
         assert_eq!(virtWaitPressButton(vc, 0), -1);
         assert_eq!(code(), VIRT_E_TIME_OUT);
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn power_reads_what_was_set_while_the_answers_lag() {
+    // Answers report the old power state for 300 answers (0.3 s) after the
+    // request was applied and acknowledged.
+    let p = FakePeer::start(FakePeerConfig {
+        center: [0.45, 0.05, 0.25],
+        amplitude: [0.0; 3],
+        answer_every_period: true,
+        power_lag_answers: 300,
+        ..Default::default()
+    })
+    .unwrap();
+    let vc = open(&p);
+    // SAFETY: vc is live; pointers valid.
+    unsafe {
+        let mut pw = 7;
+        assert_eq!(virtGetPowerOn(vc, &mut pw), 0);
+        assert_eq!(pw, 0);
+        assert_eq!(virtSetPowerOn(vc, 1), 0);
+        for _ in 0..20 {
+            assert_eq!(virtGetPowerOn(vc, &mut pw), 0);
+            assert_eq!(pw, 1, "right after virtSetPowerOn(1)");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(virtSetPowerOn(vc, 0), 0);
+        assert_eq!(virtGetPowerOn(vc, &mut pw), 0);
+        assert_eq!(pw, 0, "right after virtSetPowerOn(0)");
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn the_rust_api_reads_its_power_writes_and_falls_back_to_the_answers() {
+    use hap_core::vp::status;
+    use virtuose_api::{Options, VirtContext};
+    // A controller whose answers never show the power coming on (within
+    // this test): the value set, then, after the time a request may take,
+    // the answers' bit.
+    let p = FakePeer::start(FakePeerConfig {
+        answer_every_period: true,
+        power_lag_answers: 1_000_000,
+        ..Default::default()
+    })
+    .unwrap();
+    let opts = Options {
+        reply_timeout: Duration::from_millis(60),
+        attempts: 2,
+        ..Default::default()
+    };
+    let mut vc = VirtContext::open_with(&p.address(), opts).unwrap();
+    assert!(vc.wait_answer(Duration::from_secs(1)));
+    vc.set_power_on(true).unwrap();
+    assert!(p.stats().powered, "the fake applied it");
+    assert_eq!(
+        vc.get_status().unwrap() & status::POWER_ON,
+        0,
+        "answers lag"
+    );
+    assert!(vc.get_power_on().unwrap());
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(
+        !vc.get_power_on().unwrap(),
+        "not confirmed: the answers' bit"
+    );
+    vc.close().unwrap();
+}
+
+#[test]
+fn the_error_code_is_per_context() {
+    let (p1, p2) = (
+        peer([0.45, 0.05, 0.25], [0.0; 3]),
+        peer([0.45, 0.05, 0.25], [0.0; 3]),
+    );
+    let (vc1, vc2) = (open(&p1), open(&p2));
+    // SAFETY: both contexts are live until closed below.
+    unsafe {
+        assert_eq!(virtSetTimeStep(vc1, -1.0), -1);
+        assert_eq!(virtSetTimeStep(vc2, 0.002), 0);
+        assert_eq!(virtGetErrorCode(vc1), VIRT_E_INCORRECT_VALUE);
+        assert_eq!(virtGetErrorCode(vc2), 0);
+        let mut e = -1;
+        assert_eq!(virtGetError(vc1, &mut e), 0);
+        assert_eq!(e, VIRT_E_INCORRECT_VALUE);
+        // From another thread: the context's code, not that thread's.
+        let a = vc1 as usize;
+        let other = std::thread::spawn(move || virtGetErrorCode(a as *mut c_void));
+        assert_eq!(other.join().unwrap(), VIRT_E_INCORRECT_VALUE);
+        // A not-implemented call sets the context's code too; a success clears it.
+        assert_eq!(virtVmActivate(vc2), -1);
+        assert_eq!(virtGetErrorCode(vc2), VIRT_E_NOT_IMPLEMENTED);
+        assert_eq!(virtSetTimeStep(vc1, 0.002), 0);
+        assert_eq!(virtGetErrorCode(vc1), 0);
+        assert_eq!(virtClose(vc1), 0);
+        assert_eq!(virtClose(vc2), 0);
+    }
+}
+
+#[test]
+fn a_quasi_static_object_couples_the_handle_to_its_pose() {
+    let center = [0.45, 0.05, 0.25];
+    let p = peer(center, [0.0; 3]);
+    let vc = open(&p);
+    let k = k_lin() as f32;
+    // SAFETY: vc is live; arrays of the sizes the functions need.
+    unsafe {
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_VIRTMECH), 0);
+        // Rotations: 0 (the orientation is free); translations: a quarter
+        // of the controller's stiffness on x, twice it on y (capped), 0 on z.
+        let ks = [0.0f32, 0.0, 0.0, k / 4.0, 2.0 * k, 0.0];
+        let bs = [0.0f32; 6];
+        assert_eq!(virtAttachQSVO(vc, ks.as_ptr(), bs.as_ptr()), 0);
+        assert!(p.stats().attached);
+        assert_eq!(virtSetPowerOn(vc, 1), 0);
+        let mut handle = [0f32; 7];
+        assert_eq!(virtGetAvatarPosition(vc, handle.as_mut_ptr()), 0);
+        let target = [
+            handle[0] + 0.04,
+            handle[1] + 0.02,
+            handle[2] + 0.03,
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+        ];
+        assert_eq!(virtSetPosition(vc, target.as_ptr()), 0);
+        std::thread::sleep(Duration::from_millis(30));
+        let sp = p.stats().last_vo_pose;
+        assert!((sp[0] - (center[0] + 0.01)).abs() < 1e-4, "{sp:?}");
+        assert!((sp[1] - (center[1] + 0.02)).abs() < 1e-4, "{sp:?}");
+        assert!((sp[2] - center[2]).abs() < 1e-4, "{sp:?}");
+        // The object's pose vs the handle's.
+        let (mut pos, mut avatar) = ([0f32; 7], [0f32; 7]);
+        assert_eq!(virtGetPosition(vc, pos.as_mut_ptr()), 0);
+        assert_eq!(virtGetAvatarPosition(vc, avatar.as_mut_ptr()), 0);
+        assert_eq!(pos, target);
+        assert!((avatar[0] as f64 - center[0]).abs() < 1e-6, "{avatar:?}");
+        // Stiffness: the mean of the translational ones, each capped.
+        let mut st = 0f32;
+        assert_eq!(virtGetSimulationStiffness(vc, &mut st), 0);
+        let want = (k / 4.0 + k + 0.0) / 3.0;
+        assert!((st - want).abs() < 1e-3 * k, "{st} vs {want}");
+        // The coupling wrench on the object: towards the handle.
+        let mut f = [0f32; 6];
+        assert_eq!(virtGetForce(vc, f.as_mut_ptr()), 0);
+        assert!(f[0] < 0.0, "{f:?}");
+        // Bad gains are refused.
+        let bad = [-1.0f32; 6];
+        assert_eq!(virtAttachQSVO(vc, bad.as_ptr(), bs.as_ptr()), -1);
+        assert_eq!(virtGetErrorCode(vc), VIRT_E_INCORRECT_VALUE);
+        // Detached: virtGetPosition is the handle again.
+        assert_eq!(virtDetachVO(vc), 0);
+        assert_eq!(virtGetPosition(vc, pos.as_mut_ptr()), 0);
+        assert!((pos[0] as f64 - center[0]).abs() < 1e-6, "{pos:?}");
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn a_forced_shift_holds_the_avatar_and_keeps_the_offset() {
+    // The handle moves 5 cm along x at 2 Hz.
+    let p = FakePeer::start(FakePeerConfig {
+        center: [0.45, 0.05, 0.25],
+        amplitude: [0.05, 0.0, 0.0],
+        freq_hz: 2.0,
+        answer_every_period: true,
+        twist_every: 4,
+        ..Default::default()
+    })
+    .unwrap();
+    let vc = open(&p);
+    let avatar = |vc| {
+        let mut a = [0f32; 7];
+        // SAFETY: vc is live.
+        assert_eq!(unsafe { virtGetAvatarPosition(vc, a.as_mut_ptr()) }, 0);
+        a
+    };
+    // SAFETY: vc is live; pointers valid.
+    unsafe {
+        assert_eq!(virtSetIndexingMode(vc, 0), 0); // INDEXING_ALL
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_VIRTMECH), 0);
+        let mut shift = 7;
+        assert_eq!(virtIsInShiftPosition(vc, &mut shift), 0);
+        assert_eq!(shift, 0);
+        assert_eq!(virtForceShiftButton(vc, 1), 0);
+        assert_eq!(p.stats().command_type, Some(0), "uncoupled while shifting");
+        assert_eq!(virtIsInShiftPosition(vc, &mut shift), 0);
+        assert_eq!(shift, 1);
+        let held = avatar(vc);
+        std::thread::sleep(Duration::from_millis(80));
+        assert_eq!(avatar(vc), held, "the avatar stays while shifting");
+        let moved = p.stats().last_handle_position;
+        assert!(
+            (moved[0] - held[0] as f64).abs() > 0.005,
+            "{moved:?} {held:?}"
+        );
+        assert_eq!(virtForceShiftButton(vc, 0), 0);
+        assert_eq!(p.stats().command_type, Some(2), "VIRTMECH again");
+        assert_eq!(virtIsInShiftPosition(vc, &mut shift), 0);
+        assert_eq!(shift, 0);
+        // The avatar moves on from where it stayed: avatar − handle is the
+        // offset gathered while shifting.
+        let after = avatar(vc);
+        assert!((after[0] - held[0]).abs() < 0.003, "{after:?} {held:?}");
+        std::thread::sleep(Duration::from_millis(50));
+        let a = avatar(vc);
+        let h = p.stats().last_handle_position;
+        let off = a[0] as f64 - h[0];
+        assert!((off - (held[0] as f64 - moved[0])).abs() < 0.01, "{off}");
+        // Poses the application sends get the offset taken off.
+        assert_eq!(virtSetPosition(vc, a.as_ptr()), 0);
+        std::thread::sleep(Duration::from_millis(20));
+        let sent = p.stats().last_vo_pose;
+        assert!((sent[0] - (a[0] as f64 - off)).abs() < 1e-3, "{sent:?}");
+        assert_eq!(virtClose(vc), 0);
+    }
+}
+
+#[test]
+fn observation_frame_speed_and_frames_read_back_as_set() {
+    let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    // SAFETY: vc is live; arrays of the sizes the functions need.
+    unsafe {
+        let v = [0.1f32, 0.0, 0.0, 0.0, 0.0, 0.2];
+        assert_eq!(virtSetObservationFrameSpeed(vc, v.as_ptr()), 0);
+        let nan = [f32::NAN; 6];
+        assert_eq!(virtSetObservationFrameSpeed(vc, nan.as_ptr()), -1);
+        assert_eq!(virtGetErrorCode(vc), VIRT_E_INCORRECT_VALUE);
+        assert_eq!(virtSetObservationFrameSpeed(vc, std::ptr::null()), -1);
+        // A quaternion off unit length (float rounding of an application's
+        // double) reads back as given.
+        let base = [0.01f32, 0.02, 0.03, 0.1, 0.2, 0.3, 0.9273618];
+        let mut got = [0f32; 7];
+        assert_eq!(virtSetBaseFrame(vc, base.as_ptr()), 0);
+        assert_eq!(virtGetBaseFrame(vc, got.as_mut_ptr()), 0);
+        assert_eq!(got, base);
+        assert_eq!(virtSetObservationFrame(vc, base.as_ptr()), 0);
+        assert_eq!(virtGetObservationFrame(vc, got.as_mut_ptr()), 0);
+        assert_eq!(got, base);
         assert_eq!(virtClose(vc), 0);
     }
 }

@@ -68,7 +68,7 @@ int main(int argc, char **argv)
         virtSetSpeed(vc, speed);
         virtSetPosition(vc, pos);
         nanosleep(&tick, NULL);
-        if (virtGetPosition(vc, handle) != 0 || virtGetForce(vc, force) != 0)
+        if (virtGetAvatarPosition(vc, handle) != 0 || virtGetForce(vc, force) != 0)
             continue;
         got++;
         /* semi-implicit Euler of the point mass under the coupling force */
