@@ -101,7 +101,7 @@ grep -E '^(cycles|misses|max_consecutive_misses|wakeup.p99_us|exec.p99_us|frames
 # normal run; miss_limit: the guest was starved, see timing.md).
 grep -a -m1 -o 'hapticctrl: fail-safe ([a-z_]*): start.*' "$qlog" | tr -d '\r' | sed 's/^/  guest   /' || true
 [ "$client_rc" = 0 ] || echo "  client  failed (exit $client_rc): $(grep -a 'error' "$results/client.txt" | tail -1)"
-grep -E '^(records|duration_s|dropped_records|misses_located|fail_safe_steps|max_coupling_force_n|max_handle_speed_m_s):' "$results/plots/analysis.txt" 2>/dev/null | sed 's/^/  log     /' || true
+grep -E '^(records|duration_s|dropped_records|misses_located|fail_safe_steps|max_coupling_force_n|max_handle_speed_m_s|felt_stiffness_n_per_mm):' "$results/plots/analysis.txt" 2>/dev/null | sed 's/^/  log     /' || true
 # The log's time is the guest's servo time: under TCG it runs slower than the
 # client's wall clock, and the plots' time axis is the guest's.
 guest_s=$(sed -n 's/^duration_s: *//p' "$results/plots/analysis.txt" 2>/dev/null)

@@ -33,6 +33,7 @@ use std::path::{Path, PathBuf};
 
 use hap_core::arm::TAU_MAX;
 use hap_core::control::{BRAKE_START, MAX_FORCE};
+use hap_core::servo::log_flags;
 use hap_core::simulator::{LogMode, LogRecord};
 use hap_core::stats::{histogram_entries, key_values, parse_summary, StatsSummary, HIST_SERIES};
 use hap_core::vp::status;
@@ -62,6 +63,33 @@ fn joint_speed_ratio(r: &LogRecord) -> f64 {
         .zip(BRAKE_START.iter())
         .map(|(q, b)| q.to_f64().abs() / b.to_f64().max(1e-9))
         .fold(0.0, f64::max)
+}
+
+/// The felt stiffness of the run's contacts, N/mm: over the coupled,
+/// quasi-static cycles that push (|F| ≥ 1 N at the handle, handle speed
+/// ≤ 2 cm/s), |F| over the distance from the handle to the client's object
+/// (client frame; the stiffness the hand feels against a rigid client wall
+/// when the force and speed factors are 1). Returns (p10, median, p90,
+/// cycles), or `None` without such cycles.
+pub fn felt_stiffness<'a>(
+    recs: impl IntoIterator<Item = &'a LogRecord>,
+) -> Option<(f64, f64, f64, usize)> {
+    let mut k: Vec<f64> = recs
+        .into_iter()
+        .filter(|r| r.flags & log_flags::COUPLED != 0)
+        .filter_map(|r| {
+            let f = r.coupling_force.norm().to_f64();
+            let v = r.handle_velocity.norm().to_f64();
+            let d = r.handle_position_client.sub(r.vpr_position).norm().to_f64();
+            (f >= 1.0 && v <= 0.02 && d > 1e-6).then(|| f / (d * 1000.0))
+        })
+        .collect();
+    if k.is_empty() {
+        return None;
+    }
+    k.sort_by(|a, b| a.total_cmp(b));
+    let at = |q: f64| k[((k.len() - 1) as f64 * q).round() as usize];
+    Some((at(0.1), at(0.5), at(0.9), k.len()))
 }
 
 /// A yes/no property of a record.
@@ -906,6 +934,17 @@ impl<'a> Run<'a> {
             e += (f[0] * v[0] + f[1] * v[1] + f[2] * v[2]) * self.period_s;
         }
         let _ = writeln!(s, "coupling_port_energy_j: {e:.4}");
+        match felt_stiffness(self.recs.iter().copied()) {
+            Some((lo, med, hi, n)) => {
+                let _ = writeln!(
+                    s,
+                    "felt_stiffness_n_per_mm: {med:.3} (p10 {lo:.3}, p90 {hi:.3}; {n} quasi-static contact cycles: |F| >= 1 N, |v| <= 2 cm/s)"
+                );
+            }
+            None => {
+                let _ = writeln!(s, "felt_stiffness_n_per_mm: - (no quasi-static contact)");
+            }
+        }
         s
     }
 }
@@ -1528,6 +1567,28 @@ fn report_html(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn felt_stiffness_is_force_over_the_distance_to_the_object_in_contact() {
+        let mut r = LogRecord::ZERO;
+        r.flags = log_flags::COUPLED;
+        r.vpr_position = Vec3::from_f64([0.5, 0.0, 0.3]);
+        // 5 N at 4.4 mm: 1.136 N/mm; a fast cycle and an uncoupled one are
+        // not contacts.
+        r.handle_position_client = Vec3::from_f64([0.5, 0.0, 0.3 - 0.0044]);
+        r.coupling_force = Vec3::from_f64([0.0, 0.0, 5.0]);
+        let mut fast = r;
+        fast.handle_velocity = Vec3::from_f64([0.5, 0.0, 0.0]);
+        let mut free = r;
+        free.flags = 0;
+        let (lo, med, hi, n) = felt_stiffness(&[r, r, fast, free]).expect("contacts");
+        assert_eq!(n, 2);
+        assert!(
+            (med - 5.0 / 4.4).abs() < 1e-3 && lo == med && hi == med,
+            "{med}"
+        );
+        assert!(felt_stiffness(&[fast, free]).is_none());
+    }
     use hap_core::fixed::{Fx, Vec3};
     use hap_core::simulator::LogTiming;
     use hap_core::vp::alarm;
