@@ -64,6 +64,11 @@ if [ "$host" = 1 ]; then
   bash tests/visp/run.sh --target fake 2>&1 | tee "$out"
   line=$(grep -E '^visp-fake: [0-9]+ passed' "$out" | tail -1)
   add "ViSP on VirtuoseAPI.h (fake controller)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+  log "Python package: wheel, import, pytest (fake controller, MuJoCo example)"
+  out=$(mktemp); t_py=$(date +%s)
+  bash tests/python/run.sh 2>&1 | tee "$out"
+  line=$(grep -E '^python: [0-9]+ passed' "$out" | tail -1)
+  add "Python package (pytest, fake controller, $(( $(date +%s) - t_py )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
   rm -f "$out"
 fi
 

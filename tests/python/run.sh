@@ -1,0 +1,83 @@
+#!/usr/bin/env bash
+# The Python package (userspace/hapticctrl-py): a virtual environment with
+# pinned packages from PyPI (maturin, numpy, pytest, MuJoCo, matplotlib) in
+# the cache, the wheel built from the source tree by pip through maturin
+# (the package's own build backend), installed and imported from outside the
+# tree, the bindings linted (clippy with the extension's feature), then
+# pytest: the API against the authenticated fake controller
+# (hapticctrl-fake) and the MuJoCo example headless against it.
+#   tests/python/run.sh [--results DIR]
+# Prints every check, then "python: N passed, N failed" (the pytest count
+# included; pytest collecting nothing counts as a failure).
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+. "$ROOT/scripts/lib.sh"
+results="$ROOT/build/python"
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --results) results=${2:-}; shift ;;
+    -h|--help) hap_usage; exit 0 ;;
+    *) die "unknown argument '$1' (see --help)" ;;
+  esac
+  shift
+done
+mkdir -p "$results"; rm -rf "${results:?}"/*
+pass=0; fail=0
+ok() { pass=$((pass + 1)); echo "ok - $*"; }
+nok() { fail=$((fail + 1)); echo "not ok - $*"; }
+finish() { echo "python: $pass passed, $fail failed"; [ "$fail" = 0 ]; exit $?; }
+t0=$(date +%s)
+
+# Pinned: the versions these tests were written and measured with.
+PY_PACKAGES=(maturin==1.16.0 numpy==2.4.6 pytest==9.2.0 mujoco==4.0.0 matplotlib==3.11.2)
+venv="$HAP_CACHE/python-venv"
+py="$venv/bin/python"
+stamp="$venv/.hapticctrl-packages"
+if [ ! -x "$py" ] || [ "$(cat "$stamp" 2>/dev/null)" != "${PY_PACKAGES[*]}" ]; then
+  log "Python virtual environment $venv: ${PY_PACKAGES[*]}"
+  rm -rf "$venv"
+  python3 -m venv "$venv" && "$venv/bin/pip" install -q --disable-pip-version-check "${PY_PACKAGES[@]}" > "$results/pip.log" 2>&1 \
+    && echo "${PY_PACKAGES[*]}" > "$stamp" \
+    || { tail -5 "$results/pip.log"; nok "pip install ${PY_PACKAGES[*]}"; finish; }
+fi
+ok "virtual environment: $("$py" --version) with ${PY_PACKAGES[*]} ($(( $(date +%s) - t0 )) s so far)"
+
+export CARGO_TARGET_DIR="$ROOT/userspace/target"
+export PATH="$venv/bin:$PATH"  # maturin, for the build backend
+(cd "$ROOT/userspace" && cargo build --release --quiet -p hapticctrl-py --bin hapticctrl-fake) \
+  && ok "hapticctrl-fake built" || { nok "build hapticctrl-fake"; finish; }
+
+# The wheel, from the source tree, by the package's build backend.
+t_wheel=$(date +%s)
+if "$venv/bin/pip" wheel -q --disable-pip-version-check --no-deps --no-build-isolation \
+     -w "$results/wheels" "$ROOT/userspace/hapticctrl-py" > "$results/wheel.log" 2>&1; then
+  whl=$(ls "$results"/wheels/hapticctrl-*.whl 2>/dev/null | head -1)
+  ok "wheel built from the source tree: $(basename "$whl") ($(( $(date +%s) - t_wheel )) s)"
+else
+  tail -20 "$results/wheel.log"; nok "pip wheel userspace/hapticctrl-py"; finish
+fi
+"$venv/bin/pip" install -q --disable-pip-version-check --force-reinstall --no-deps "$whl" > "$results/install.log" 2>&1 \
+  && ok "wheel installed" || { tail -5 "$results/install.log"; nok "pip install $whl"; finish; }
+where=$(cd / && "$py" -c 'import hapticctrl, hapticctrl._native as n; print(hapticctrl.__version__, n.__file__)') \
+  && ok "import hapticctrl (from /): $where" || nok "import hapticctrl"
+stubs=$(cd / && "$py" -c 'import hapticctrl, pathlib; p = pathlib.Path(hapticctrl.__file__).parent; print(int((p / "_native.pyi").exists() and (p / "py.typed").exists()))')
+[ "$stubs" = 1 ] && ok "type stubs installed (_native.pyi, py.typed)" || nok "type stubs missing from the wheel"
+(cd "$ROOT/userspace" && PYO3_PYTHON="$py" cargo clippy --quiet -p hapticctrl-py --features python --all-targets --color never -- -D warnings) \
+  && ok "clippy -D warnings on the bindings (feature python)" || nok "clippy on the bindings"
+
+out="$results/pytest.txt"
+t_pytest=$(date +%s)
+(cd "$ROOT/userspace/hapticctrl-py/tests" && HAPTICCTRL_FAKE="$CARGO_TARGET_DIR/release/hapticctrl-fake" MPLBACKEND=Agg \
+  "$py" -m pytest -p no:cacheprovider -q -rs --basetemp="$results/tmp" 2>&1) | tee "$out"
+rc=${PIPESTATUS[0]}
+line=$(grep -E '^[0-9]+ (passed|failed)|^=+ .*(passed|failed)' "$out" | tail -1)
+p=$(echo "$line" | grep -oE '[0-9]+ passed' | awk '{print $1}'); p=${p:-0}
+f=$(echo "$line" | grep -oE '[0-9]+ (failed|error)' | awk '{s+=$1} END {print s+0}')
+pass=$((pass + p)); fail=$((fail + f))
+case "$rc" in
+  0) ;;
+  5) nok "pytest collected no test" ;;
+  *) [ "$f" -gt 0 ] || nok "pytest exited with $rc" ;;
+esac
+echo "# pytest: $p passed, $f failed ($(( $(date +%s) - t_pytest )) s); the part: $(( $(date +%s) - t0 )) s"
+finish
