@@ -28,36 +28,17 @@ nok() { fail=$((fail + 1)); echo "not ok - $*"; }
 finish() { echo "python: $pass passed, $fail failed"; [ "$fail" = 0 ]; exit $?; }
 t0=$(date +%s)
 
-# Pinned: the versions these tests were written and measured with.
-PY_PACKAGES=(maturin==1.16.0 numpy==2.4.6 pytest==9.2.0 mujoco==4.0.0 matplotlib==3.11.2)
-venv="$HAP_CACHE/python-venv"
-py="$venv/bin/python"
-stamp="$venv/.hapticctrl-packages"
-if [ ! -x "$py" ] || [ "$(cat "$stamp" 2>/dev/null)" != "${PY_PACKAGES[*]}" ]; then
-  log "Python virtual environment $venv: ${PY_PACKAGES[*]}"
-  rm -rf "$venv"
-  python3 -m venv "$venv" && "$venv/bin/pip" install -q --disable-pip-version-check "${PY_PACKAGES[@]}" > "$results/pip.log" 2>&1 \
-    && echo "${PY_PACKAGES[*]}" > "$stamp" \
-    || { tail -5 "$results/pip.log"; nok "pip install ${PY_PACKAGES[*]}"; finish; }
-fi
-ok "virtual environment: $("$py" --version) with ${PY_PACKAGES[*]} ($(( $(date +%s) - t0 )) s so far)"
+. "$ROOT/scripts/python-venv.sh"
+hap_python_venv "$results" || { nok "pip install -r userspace/hapticctrl-py/requirements-test.txt"; finish; }
+ok "virtual environment: $("$py" --version), $(grep -v '^#' "$ROOT/userspace/hapticctrl-py/requirements-test.txt" | tr '\n' ' ')($(( $(date +%s) - t0 )) s so far)"
 
 export CARGO_TARGET_DIR="$ROOT/userspace/target"
-export PATH="$venv/bin:$PATH"  # maturin, for the build backend
 (cd "$ROOT/userspace" && cargo build --release --quiet -p hapticctrl-py --bin hapticctrl-fake) \
   && ok "hapticctrl-fake built" || { nok "build hapticctrl-fake"; finish; }
 
-# The wheel, from the source tree, by the package's build backend.
 t_wheel=$(date +%s)
-if "$venv/bin/pip" wheel -q --disable-pip-version-check --no-deps --no-build-isolation \
-     -w "$results/wheels" "$ROOT/userspace/hapticctrl-py" > "$results/wheel.log" 2>&1; then
-  whl=$(ls "$results"/wheels/hapticctrl-*.whl 2>/dev/null | head -1)
-  ok "wheel built from the source tree: $(basename "$whl") ($(( $(date +%s) - t_wheel )) s)"
-else
-  tail -20 "$results/wheel.log"; nok "pip wheel userspace/hapticctrl-py"; finish
-fi
-"$venv/bin/pip" install -q --disable-pip-version-check --force-reinstall --no-deps "$whl" > "$results/install.log" 2>&1 \
-  && ok "wheel installed" || { tail -5 "$results/install.log"; nok "pip install $whl"; finish; }
+hap_python_wheel "$results" && ok "wheel built from the source tree and installed: $(basename "$whl") ($(( $(date +%s) - t_wheel )) s)" \
+  || { nok "pip wheel userspace/hapticctrl-py"; finish; }
 where=$(cd / && "$py" -c 'import hapticctrl, hapticctrl._native as n; print(hapticctrl.__version__, n.__file__)') \
   && ok "import hapticctrl (from /): $where" || nok "import hapticctrl"
 stubs=$(cd / && "$py" -c 'import hapticctrl, pathlib; p = pathlib.Path(hapticctrl.__file__).parent; print(int((p / "_native.pyi").exists() and (p / "py.typed").exists()))')
