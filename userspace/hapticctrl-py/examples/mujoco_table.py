@@ -148,13 +148,14 @@ def run(
     period: float = 0.001,
     origin: np.ndarray | None = None,
     viewer: bool = False,
-    on_tick: Callable[[hc.Tick], None] | None = None,
+    on_tick: Callable[[hc.Tick], bool | None] | None = None,
     link_timeout: float = 0.05,
     fade: float = 0.1,
 ) -> tuple[Trace, hc.LoopStats]:
     """Couple the handle to the tool for `duration` s. `origin`: the
     controller's coordinates of MuJoCo's origin (None: the handle's position
-    at the start minus the tool's)."""
+    at the start minus the tool's). `on_tick(tick)`, if given, is called
+    first every cycle; returning False ends the run."""
     scene = Scene(period)
     session.set_time_step(period)
     session.set_command_type("virtmech")
@@ -176,8 +177,8 @@ def run(
         view = mujoco.viewer.launch_passive(scene.model, scene.data)
 
     def tick(t: hc.Tick):
-        if on_tick is not None:
-            on_tick(t)
+        if on_tick is not None and on_tick(t) is False:
+            return False
         scene.step(t.force)
         table, objects = scene.contact_normals()
         pose, twist = scene.tool_pose_twist()
