@@ -10,7 +10,8 @@
  *   loop_c ADDRESS SECONDS [PERIOD_US]   (ADDRESS: "HOST#PORT?key=FILE")
  *
  * Prints one line: "c: cycles=N rate_hz=R period_mean_us=M period_std_us=S
- * period_max_us=X lateness_max_us=L work_mean_us=W work_p99_us=P work_max_us=Y overruns=O"
+ * period_max_us=X lateness_max_us=L work_mean_us=W work_p50_us=M work_p99_us=P work_max_us=Y
+ * overruns=O"
  */
 #include <math.h>
 #include <stdio.h>
@@ -111,8 +112,8 @@ int main(int argc, char **argv)
     double mean = sum / np, std = sqrt(fmax(0, sq / np - mean * mean));
     qsort(work, cycles, sizeof *work, cmp_double);
     printf("c: cycles=%ld rate_hz=%.1f period_mean_us=%.1f period_std_us=%.1f period_max_us=%.1f "
-           "lateness_max_us=%.1f work_mean_us=%.2f work_p99_us=%.2f work_max_us=%.1f overruns=%ld\n",
-           cycles, 1e6 / mean, mean, std, pmax, late_max, wsum / cycles, work[(long)(cycles * 0.99)], wmax,
+           "lateness_max_us=%.1f work_mean_us=%.2f work_p50_us=%.2f work_p99_us=%.2f work_max_us=%.1f overruns=%ld\n",
+           cycles, 1e6 / mean, mean, std, pmax, late_max, wsum / cycles, work[cycles / 2], work[(long)(cycles * 0.99)], wmax,
            overruns);
     (void)sink;
     return 0;

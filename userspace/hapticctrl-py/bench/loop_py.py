@@ -36,6 +36,7 @@ def main() -> int:
         f"python: cycles={st.cycles} rate_hz={st.rate_hz:.1f} period_mean_us={st.period_mean_us:.1f} "
         f"period_std_us={st.period_std_us:.1f} period_max_us={st.period_max_us:.1f} "
         f"lateness_max_us={st.lateness_max_us:.1f} work_mean_us={st.work_mean_us:.2f} "
+        f"work_p50_us={w[len(w) // 2]:.2f} "
         f"work_p99_us={w[int(len(w) * 0.99)]:.2f} work_max_us={st.work_max_us:.1f} overruns={st.overruns}"
     )
     return 0

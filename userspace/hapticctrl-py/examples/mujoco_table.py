@@ -10,7 +10,7 @@ friction do to the tool, the handle feels. The tool carries no weight
 (gravcomp) so that only contacts are felt.
 
     mujoco_table.py --address HOST#5000?key=hap.key [--duration S] [--out DIR]
-                    [--headless | --viewer] [--origin auto|X,Y,Z]
+                    [--headless | --viewer] [--origin auto|X,Y,Z] [--clock host|controller]
 
 Headless unless a display exists (then MuJoCo's passive viewer; --headless
 forces it off). At the end the trajectory, the contact forces and the
@@ -151,11 +151,18 @@ def run(
     on_tick: Callable[[hc.Tick], bool | None] | None = None,
     link_timeout: float = 0.05,
     fade: float = 0.1,
+    clock: str = "host",
+    power_off: bool = True,
 ) -> tuple[Trace, hc.LoopStats]:
     """Couple the handle to the tool for `duration` s. `origin`: the
     controller's coordinates of MuJoCo's origin (None: the handle's position
     at the start minus the tool's). `on_tick(tick)`, if given, is called
-    first every cycle; returning False ends the run."""
+    first every cycle; returning False ends the run. `clock`: "host" steps
+    MuJoCo once per period; "controller" by the servo cycles the answers
+    show (none without a new answer), for a controller slower than the host.
+    `power_off`: request the arm's power off at the end."""
+    if clock not in ("host", "controller"):
+        raise ValueError(f"clock {clock!r}: host or controller")
     scene = Scene(period)
     session.set_time_step(period)
     session.set_command_type("virtmech")
@@ -176,10 +183,19 @@ def run(
 
         view = mujoco.viewer.launch_passive(scene.model, scene.data)
 
+    last_cycle = [session.cycle]
+
     def tick(t: hc.Tick):
         if on_tick is not None and on_tick(t) is False:
             return False
-        scene.step(t.force)
+        if clock == "host":
+            steps = 1
+        else:
+            # Cycles since the last step (wrapping 32-bit counter), bounded.
+            steps = min((t.cycle - last_cycle[0]) % (1 << 32), 50)
+            last_cycle[0] = t.cycle
+        for _ in range(steps):
+            scene.step(t.force)
         table, objects = scene.contact_normals()
         pose, twist = scene.tool_pose_twist()
         trace.t.append(t.t)
@@ -202,10 +218,11 @@ def run(
     finally:
         if view is not None:
             view.close()
-    try:
-        session.set_power_on(False)
-    except hc.VirtuoseError:
-        pass  # the link may be gone: the controller fades on its own
+    if power_off:
+        try:
+            session.set_power_on(False)
+        except hc.VirtuoseError:
+            pass  # the link may be gone: the controller fades on its own
     return trace, stats
 
 
@@ -260,13 +277,15 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--headless", action="store_true", help="no viewer even with a display")
     g.add_argument("--viewer", action="store_true", help="MuJoCo's viewer (needs a display)")
     ap.add_argument("--origin", default="auto", help="auto or X,Y,Z: the controller's coordinates of MuJoCo's origin")
+    ap.add_argument("--clock", choices=("host", "controller"), default="host",
+                    help="step MuJoCo once per period (host) or by the controller's servo cycles")
     args = ap.parse_args(argv)
     origin = None if args.origin == "auto" else np.array([float(v) for v in args.origin.split(",")])
     has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     viewer = args.viewer or (has_display and not args.headless)
     try:
         with hc.Session(args.address, key=args.key, insecure=args.insecure) as s:
-            trace, stats = run(s, args.duration, origin=origin, viewer=viewer)
+            trace, stats = run(s, args.duration, origin=origin, viewer=viewer, clock=args.clock)
     except hc.VirtuoseError as e:
         print(f"mujoco_table: {type(e).__name__}: {e}", file=sys.stderr)
         return 1

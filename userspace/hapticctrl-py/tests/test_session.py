@@ -127,3 +127,20 @@ def test_insecure_speaks_v1_to_an_insecure_controller(start_fake):
     with hc.Session(f.address, insecure=True) as s:
         assert not s.authenticated
         assert s.wait_answer(2.0)
+
+
+def test_the_user_guides_example_runs(fake, key_file, capsys):
+    import re
+    from pathlib import Path
+
+    guide = (Path(__file__).resolve().parents[3] / "Documentation" / "userguide.md").read_text()
+    section = guide[guide.index("## Python: the `hapticctrl` package") :]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    assert len(code.strip().splitlines()) == 10
+    code = code.replace("192.168.7.2#5000?key=hap.key", f"{fake.address}?key={key_file}")
+    code = code.replace("duration=5.0", "duration=0.3")
+    exec(compile(code, "userguide.md", "exec"), {})
+    assert "LoopStats(cycles=" in capsys.readouterr().out
+    st = fake.stats()
+    assert num(st, "frames.vpr_stream") > 100
+    assert num(st, "session_open") == 0
