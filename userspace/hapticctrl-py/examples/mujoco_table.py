@@ -159,7 +159,9 @@ def run(
     at the start minus the tool's). `on_tick(tick)`, if given, is called
     first every cycle; returning False ends the run. `clock`: "host" steps
     MuJoCo once per period; "controller" by the servo cycles the answers
-    show (none without a new answer), for a controller slower than the host.
+    show (none without a new answer, and then nothing is streamed: the
+    set-points follow the controller's rate), for a controller slower than
+    the host.
     `power_off`: request the arm's power off at the end."""
     if clock not in ("host", "controller"):
         raise ValueError(f"clock {clock!r}: host or controller")
@@ -196,6 +198,8 @@ def run(
             last_cycle[0] = t.cycle
         for _ in range(steps):
             scene.step(t.force)
+        if clock == "controller" and steps == 0:
+            return None  # no new answer: nothing new to send (paced by the controller)
         table, objects = scene.contact_normals()
         pose, twist = scene.tool_pose_twist()
         trace.t.append(t.t)
