@@ -8,10 +8,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use numpy::{AllowTypeChange, PyArray1, PyArrayLike1};
+use numpy::{AllowTypeChange, PyArray1, PyArrayLike1, PyArrayMethods};
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyTuple};
+use pyo3::types::{PyBool, PyDict, PyTuple};
 
 use hap_auth::Psk;
 use hap_core::vp::status;
@@ -147,6 +147,38 @@ fn vector<const N: usize>(
         *o = *x as f32;
     }
     Ok(out)
+}
+
+/// `vector` of any object: a float64 numpy array is read in place, anything
+/// else goes through numpy's conversion.
+fn vector_of<const N: usize>(
+    py: Python<'_>,
+    what: &str,
+    v: &Bound<'_, PyAny>,
+) -> PyResult<[f32; N]> {
+    if let Ok(a) = v.cast::<PyArray1<f64>>() {
+        let r = a.readonly();
+        if let Ok(sl) = r.as_slice() {
+            if sl.len() != N {
+                return Err(invalid(
+                    py,
+                    format!("{what}: {} values, expected {N} (shape ({N},))", sl.len()),
+                ));
+            }
+            let mut out = [0f32; N];
+            for (o, x) in out.iter_mut().zip(sl) {
+                if !x.is_finite() {
+                    return Err(invalid(py, format!("{what}: {x} is not finite")));
+                }
+                *o = *x as f32;
+            }
+            return Ok(out);
+        }
+    }
+    let like: PyArrayLike1<'_, f64, AllowTypeChange> = v
+        .extract()
+        .map_err(|e| invalid(py, format!("{what}: {e}")))?;
+    vector::<N>(py, what, &like)
 }
 
 fn array<'py, const N: usize>(py: Python<'py>, v: [f32; N]) -> Bound<'py, PyArray1<f64>> {
@@ -723,15 +755,20 @@ impl Session {
             };
             let ret = callback.call1((tick,))?;
             let mut stop = false;
+            // Checked by type, not by trying conversions (a failed one
+            // builds an exception: microseconds every cycle).
             if ret.is_none() {
-            } else if let Ok(false) = ret.extract::<bool>() {
+            } else if let Ok(b) = ret.cast::<PyBool>() {
+                if b.is_true() {
+                    return Err(invalid(
+                        py,
+                        "the callback returns None, (pose, twist) or False".into(),
+                    ));
+                }
                 stop = true;
-            } else if let Ok((pose, twist)) = ret.extract::<(
-                PyArrayLike1<'_, f64, AllowTypeChange>,
-                PyArrayLike1<'_, f64, AllowTypeChange>,
-            )>() {
-                let p = vector::<7>(py, "callback's pose", &pose)?;
-                let t = vector::<6>(py, "callback's twist", &twist)?;
+            } else if let Some(pair) = ret.cast::<PyTuple>().ok().filter(|t| t.len() == 2) {
+                let p = vector_of::<7>(py, "callback's pose", &pair.get_item(0)?)?;
+                let t = vector_of::<6>(py, "callback's twist", &pair.get_item(1)?)?;
                 self.with(py, |c| {
                     c.set_speed(&t)?;
                     c.set_position(&p)
