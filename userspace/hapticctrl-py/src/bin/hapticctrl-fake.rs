@@ -35,6 +35,9 @@ fn number(flag: &str, s: &str, lo: f64, hi: f64) -> Result<f64, String> {
         .ok_or_else(|| format!("{flag} {s}: a number in [{lo}, {hi}]"))
 }
 
+const USAGE: &str = "usage: hapticctrl-fake (--key FILE | --insecure) [--port N] [--period-us N] [--per-request] [--center X,Y,Z] [--amplitude X,Y,Z] [--freq HZ] [--stiffness N/m] [--damping N.s/m] [--powered]";
+
+#[derive(Debug)]
 struct Args {
     port: u16,
     key: Option<Psk>,
@@ -88,7 +91,8 @@ fn parse(args: &[String]) -> Result<Args, String> {
                 cfg.powered = true;
                 takes_value = false;
             }
-            a => return Err(format!("unknown argument {a}")),
+            "-h" | "--help" => return Err(USAGE.into()),
+            a => return Err(format!("unknown argument {a}\n{USAGE}")),
         }
         i += if takes_value { 2 } else { 1 };
     }
@@ -158,4 +162,60 @@ fn main() {
     }
     print_stats(&f);
     f.stop();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(a: &[&str]) -> Result<Args, String> {
+        parse(&a.iter().map(|s| s.to_string()).collect::<Vec<_>>())
+    }
+
+    #[test]
+    fn bad_command_lines_are_refused_with_a_reason() {
+        assert!(args(&[]).unwrap_err().contains("--key FILE"));
+        assert!(args(&["--insecure", "--key", "/nonexistent"]).is_err());
+        assert!(args(&["--key", "/nonexistent/hap.key"])
+            .unwrap_err()
+            .contains("/nonexistent/hap.key"));
+        assert!(args(&["--insecure", "--port"])
+            .unwrap_err()
+            .contains("needs a value"));
+        assert!(args(&["--insecure", "--port", "70000"]).is_err());
+        assert!(args(&["--insecure", "--period-us", "10"]).is_err());
+        assert!(args(&["--insecure", "--center", "1,2"]).is_err());
+        assert!(args(&["--insecure", "--amplitude", "1,nan,2"]).is_err());
+        assert!(args(&["--insecure", "--bogus"])
+            .unwrap_err()
+            .contains("usage"));
+        assert!(args(&["--help"]).unwrap_err().starts_with("usage"));
+    }
+
+    #[test]
+    fn a_good_command_line() {
+        let a = args(&[
+            "--insecure",
+            "--port",
+            "47551",
+            "--period-us",
+            "500",
+            "--per-request",
+            "--center",
+            "0.1,0,0",
+            "--amplitude",
+            "0,0,0.06",
+            "--freq",
+            "0.5",
+            "--powered",
+        ])
+        .unwrap();
+        assert_eq!(a.port, 47551);
+        assert!(a.key.is_none());
+        assert_eq!(a.cfg.period_us, 500);
+        assert!(!a.cfg.answer_every_period);
+        assert!(a.cfg.powered);
+        assert_eq!(a.cfg.center, [0.1, 0.0, 0.0]);
+        assert_eq!(a.cfg.amplitude, [0.0, 0.0, 0.06]);
+    }
 }
