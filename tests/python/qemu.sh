@@ -10,7 +10,7 @@ nice -n 10 bash "$ROOT/scripts/build-userspace-static.sh" > "$results/static.log
 key=$(hap_keyfile "$ROOT/build/hap-test.key")
 [ -n "$port" ] || port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 period_us=1000
-end_cycle=${HAP_PY_QEMU_END_CYCLE:-4500}
+end_cycle=${HAP_PY_QEMU_END_CYCLE:-6000}
 t_guest=$(date +%s)
 read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background --stock --icount \
   --udp "$port:5000" --key "$key" --log "$results/guest.log" --extra "$ROOT/tests/data/press.eff:/data/effort.eff" \
@@ -41,6 +41,7 @@ check_num "client: the table's contact force while pressed (N)" "$(cv max_table_
 check_num "client: samples of the press" "$(cv press_samples)" '>=' 100
 check_num "client: the force felt at the handle is the contact force (median error, N)" "$(cv press_felt_vs_contact_median_err_n)" '<' 0.3
 check_num "client: the tool stays on the table (lowest tip centre, m)" "$(cv tool_min_z_m)" '>' 0.012
+check_num "client: the lifted tool left the table (samples in the air, no contact)" "$(cv lifted_samples)" '>=' 100
 between() { sed -n "/$1-BEGIN/,/$1-END/p" "$qlog" | tr -d "\r" | grep -v -- "$1-"; }
 between HAP-STATS > "$results/hap_stats.txt"
 between HAP-PROTO > "$results/proto_interface.txt"

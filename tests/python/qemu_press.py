@@ -1,8 +1,11 @@
 """Host side of tests/python/run.sh --target qemu: the MuJoCo example
 against the module in the guest. MuJoCo follows the controller's clock
 (the emulated guest is slower than the host); the scripted user
-(tests/data/press.eff) presses the handle down from 2.5 s of servo time: the
-coupled tool meets the table. At servo cycle END the client stops streaming
+(tests/data/press.eff) lifts the handle, then presses it down from 2.5 s of
+servo time. The handle starts at the bottom of the arm's range: MuJoCo's
+origin is put there (the table top 2 cm above it, the tool's resting height
+with its 2 cm tip), so the coupled tool rests on the table, leaves it when
+the handle is lifted and meets it again when it is pressed. At servo cycle END the client stops streaming
 with the session open (the link is lost: the module's watchdog fades the
 coupling), waits SILENCE host seconds, powers off and closes. Prints the
 figures as `key: value` lines and writes the plot and the samples to OUT.
@@ -41,8 +44,18 @@ def main() -> int:
         print(f"authenticated: {int(s.authenticated)}")
         # Host-time link timeout and fade long enough for an emulated guest's
         # pauses (it answers ~100 times per host second).
+        if not s.wait_answer(5.0):
+            raise hc.ControllerTimeoutError(6, "no answer from the controller")
+        origin = s.get_position()[:3]
         trace, stats = ex.run(
-            s, 600.0, on_tick=on_tick, clock="controller", power_off=False, link_timeout=0.5, fade=0.5
+            s,
+            600.0,
+            origin=origin,
+            on_tick=on_tick,
+            clock="controller",
+            power_off=False,
+            link_timeout=0.5,
+            fade=0.5,
         )
         last = s.cycle
         time.sleep(silence)  # nothing sent: the module's watchdog fades the coupling
@@ -64,6 +77,9 @@ def main() -> int:
     print(f"press_contact_median_n: {np.median(table[press]) if press.any() else 0:.3f}")
     print(f"press_felt_vs_contact_median_err_n: {np.median(err):.3f}")
     print(f"tool_min_z_m: {a['tool'][:, 2].min():.4f}")
+    print(f"tool_max_z_m: {a['tool'][:, 2].max():.4f}")
+    lifted = (a["tool"][:, 2] > 0.025) & (table == 0.0)
+    print(f"lifted_samples: {int(lifted.sum())}")
     print(f"plot: {png}")
     return 0
 
