@@ -114,6 +114,14 @@ if [ "$qemu" = 1 ]; then
     line=$(grep -E '^visp-qemu: [0-9]+ passed' "$out" | tail -1)
     add "ViSP on VirtuoseAPI.h (module in QEMU, $kernel kernel, $(( $(date +%s) - t_visp )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
     rm -f "$out"
+    if [ "$kernel" = stock ]; then
+      log "the Python package's MuJoCo example against the module in QEMU"
+      out=$(mktemp); t_pyq=$(date +%s)
+      bash tests/python/run.sh --target qemu 2>&1 | tee "$out"
+      line=$(grep -E '^python-qemu: [0-9]+ passed' "$out" | tail -1)
+      add "Python MuJoCo example (module in QEMU, $(( $(date +%s) - t_pyq )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+      rm -f "$out"
+    fi
     if [ "$e2e" = 1 ]; then
       out=$(mktemp)
       bash tests/e2e/link.sh $kflag | tee "$out"
