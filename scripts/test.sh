@@ -69,6 +69,11 @@ if [ "$host" = 1 ]; then
   bash tests/vapi/run.sh 2>&1 | tee "$out"
   line=$(grep -E '^vapi-apps: [0-9]+ passed' "$out" | tail -1)
   add "VirtuoseAPI applications' conventions (installed layout, fake controller, $(( $(date +%s) - t_vapi )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+  log "Python package: wheel, import, pytest (fake controller, MuJoCo example)"
+  rm -f "$out"; out=$(mktemp); t_py=$(date +%s)
+  bash tests/python/run.sh 2>&1 | tee "$out"
+  line=$(grep -E '^python: [0-9]+ passed' "$out" | tail -1)
+  add "Python package (pytest, fake controller, $(( $(date +%s) - t_py )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
   rm -f "$out"
 fi
 
@@ -114,6 +119,14 @@ if [ "$qemu" = 1 ]; then
     line=$(grep -E '^visp-qemu: [0-9]+ passed' "$out" | tail -1)
     add "ViSP on VirtuoseAPI.h (module in QEMU, $kernel kernel, $(( $(date +%s) - t_visp )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
     rm -f "$out"
+    if [ "$kernel" = stock ]; then
+      log "the Python package's MuJoCo example against the module in QEMU"
+      out=$(mktemp); t_pyq=$(date +%s)
+      bash tests/python/run.sh --target qemu 2>&1 | tee "$out"
+      line=$(grep -E '^python-qemu: [0-9]+ passed' "$out" | tail -1)
+      add "Python MuJoCo example (module in QEMU, $(( $(date +%s) - t_pyq )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+      rm -f "$out"
+    fi
     if [ "$e2e" = 1 ]; then
       out=$(mktemp)
       bash tests/e2e/link.sh $kflag | tee "$out"
