@@ -146,6 +146,8 @@ def main():
     ap.add_argument("--namespace", default="/hapticctrl")
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--target", default="", help="X,Y,Z of the target pose to publish")
+    ap.add_argument("--target-offset", default="",
+                    help="DX,DY,DZ: the target is the first pose received plus this offset")
     ap.add_argument("--target-after", type=float, default=3.0)
     ap.add_argument("--target-rate", type=float, default=500.0)
     ap.add_argument("--frame-id", default="hapticctrl_base")
@@ -177,6 +179,11 @@ def main():
         target = [float(v) for v in a.target.split(",")]
         if len(target) != 3:
             sys.exit("--target X,Y,Z")
+    offset = None
+    if a.target_offset:
+        offset = [float(v) for v in a.target_offset.split(",")]
+        if len(offset) != 3:
+            sys.exit("--target-offset DX,DY,DZ")
     t0 = time.monotonic()
     sent = 0
     first_target_ns = None
@@ -184,6 +191,11 @@ def main():
     next_send = t0 + a.target_after
     while time.monotonic() - t0 < a.duration:
         now = time.monotonic()
+        if offset is not None and target is None and now >= next_send:
+            with rec["pose"].lock:
+                got = rec["pose"].samples[-1][1].pose.position if rec["pose"].samples else None
+            if got is not None:
+                target = [got.x + offset[0], got.y + offset[1], got.z + offset[2]]
         if target is not None and now >= next_send:
             ns_now = time.time_ns()
             if first_target_ns is None:
@@ -198,7 +210,7 @@ def main():
             next_send += period
             if next_send < now:
                 next_send = now + period
-        time.sleep(max(0.0, min(period, next_send - time.monotonic())) if target is not None else 0.01)
+        time.sleep(max(0.0, min(period, next_send - time.monotonic())) if target is not None else 0.005)
 
     out = {}
     for name, r in rec.items():
@@ -207,6 +219,7 @@ def main():
     print(f"targets_sent: {sent}")
     if first_target_ns is not None:
         print(f"first_target_ns: {first_target_ns}")
+        print("target: " + ",".join(f"{v:.6f}" for v in target))
     for name in ("pose", "joint_states", "wrench"):
         s = out[name]
         print(f"{name}.samples: {len(s)}")

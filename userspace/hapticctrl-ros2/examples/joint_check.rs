@@ -27,7 +27,7 @@ fn main() {
             .split_whitespace()
             .skip(1)
             .map(str::parse::<f64>)
-            .collect::<Result<_, _>>()
+            .collect::<Result<Vec<f64>, _>>()
         {
             Ok(v) if v.len() == 16 && v.iter().all(|x| x.is_finite()) => v,
             _ => {
