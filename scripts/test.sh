@@ -64,6 +64,11 @@ if [ "$host" = 1 ]; then
   bash tests/visp/run.sh --target fake 2>&1 | tee "$out"
   line=$(grep -E '^visp-fake: [0-9]+ passed' "$out" | tail -1)
   add "ViSP on VirtuoseAPI.h (fake controller)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+  log "hapticctrl-ros2 against Cyclone DDS (Python) as a ROS 2 peer, fake controller"
+  t_ros2=$(date +%s)
+  bash tests/ros2/run.sh --target fake 2>&1 | tee "$out"
+  line=$(grep -E '^ros2-fake: [0-9]+ passed' "$out" | tail -1)
+  add "ROS 2 node vs Cyclone DDS (fake controller, $(( $(date +%s) - t_ros2 )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
   rm -f "$out"
 fi
 
@@ -108,6 +113,12 @@ if [ "$qemu" = 1 ]; then
     bash tests/visp/run.sh --target qemu $([ "$kernel" = self ] && echo --self-built-kernel) 2>&1 | tee "$out"
     line=$(grep -E '^visp-qemu: [0-9]+ passed' "$out" | tail -1)
     add "ViSP on VirtuoseAPI.h (module in QEMU, $kernel kernel, $(( $(date +%s) - t_visp )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+    rm -f "$out"
+    log "hapticctrl-ros2 against Cyclone DDS (Python) as a ROS 2 peer, module in QEMU"
+    out=$(mktemp); t_ros2=$(date +%s)
+    bash tests/ros2/run.sh --target qemu $([ "$kernel" = self ] && echo --self-built-kernel) 2>&1 | tee "$out"
+    line=$(grep -E '^ros2-qemu: [0-9]+ passed' "$out" | tail -1)
+    add "ROS 2 node vs Cyclone DDS (module in QEMU, $kernel kernel, $(( $(date +%s) - t_ros2 )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
     rm -f "$out"
     if [ "$e2e" = 1 ]; then
       out=$(mktemp)

@@ -9,10 +9,11 @@
 # states, wrench and status and publishes target poses; the checks compare
 # the samples with the controller's answers, the rates, and that the
 # set-points reached the controller and moved the coupling target.
-#   tests/ros2/run.sh [--target fake|qemu] [--port N] [--domain N] [--results DIR]
+#   tests/ros2/run.sh [--target fake|qemu] [--self-built-kernel] [--port N] [--domain N] [--results DIR]
 # fake: the fake controller (virtuose_api::fake_peer, 1 kHz answers) on the
 # host; the node's debug build (what cargo test builds), 12 s of traffic.
-# qemu: the module in QEMU (Debian's stock rt-amd64 kernel, make STOCK=1) and
+# qemu: the module in QEMU (Debian's stock rt-amd64 kernel, make STOCK=1;
+# --self-built-kernel: the project's test kernel) and
 # the authenticated bridge, the node on the host over UDP 127.0.0.1:PORT
 # (default 47600) -> guest:5000 (a few minutes, most of it the guest's boot);
 # the emulated guest answers at its own pace (TCG), so the rate checked there
@@ -21,10 +22,11 @@
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 . "$ROOT/scripts/lib.sh"
-target=fake; results=""; port=${HAP_ROS2_PORT:-47600}; domain=${HAP_ROS2_DOMAIN:-42}
+target=fake; results=""; kflag=--stock; makeflag=STOCK=1; port=${HAP_ROS2_PORT:-47600}; domain=${HAP_ROS2_DOMAIN:-42}
 while [ $# -gt 0 ]; do
   case "$1" in
     --target) target=${2:-}; shift ;;
+    --self-built-kernel) kflag=""; makeflag="" ;;
     --port) port=${2:-}; shift ;;
     --domain) domain=${2:-}; shift ;;
     --results) results=${2:-}; shift ;;
@@ -163,13 +165,13 @@ fi
 
 # ---- QEMU: the module and proto_interface in the guest, UDP from the host
 t_build=$(date +%s)
-(cd "$ROOT" && nice -n 10 make -s STOCK=1) > "$results/make.log" 2>&1 || { tail -5 "$results/make.log"; nok "module build (make STOCK=1)"; finish; }
+(cd "$ROOT" && nice -n 10 make -s $makeflag) > "$results/make.log" 2>&1 || { tail -5 "$results/make.log"; nok "module build (make $makeflag)"; finish; }
 nice -n 10 bash "$ROOT/scripts/build-userspace-static.sh" > "$results/static.log" 2>&1 \
   || { tail -5 "$results/static.log"; nok "static userspace build"; finish; }
 key=$(hap_keyfile "$ROOT/build/hap-test.key")
 t_guest=$(date +%s)
 period_us=1000
-read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background --stock --icount \
+read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background $kflag --icount \
   --udp "$port:5000" --key "$key" --log "$results/guest.log" "$ROOT/tests/guest/serve.sh" "$period_us" 300)
 stop_guest() { kill $(pgrep -P "$qpid" 2>/dev/null) "$qpid" 2>/dev/null; }
 trap stop_guest EXIT

@@ -1,0 +1,176 @@
+//! The node as a process: its command line refuses bad arguments with a
+//! message (no panic), and, connected to the fake controller, it powers the
+//! arm on when a ROS 2 client calls its `set_power` service (std_srvs/SetBool)
+//! and reports it on its reliable `status` topic. The client is a second
+//! ros2-client participant (DDS domain 43, loopback only); the independent
+//! DDS peer is tests/ros2/run.sh.
+
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use hapticctrl_ros2::msgs::{self, DiagnosticStatus, MsgType, SetBoolRequest, SetBoolResponse};
+use ros2_client::qos::{Durability, History, Reliability, WhenFull};
+use ros2_client::{Context, Name, NodeName, NodeOptions, QosProfile, ServiceMapping};
+use rustdds::DomainParticipantBuilder;
+use virtuose_api::fake_peer::{FakePeer, FakePeerConfig};
+
+const NODE: &str = env!("CARGO_BIN_EXE_hapticctrl-ros2");
+const DOMAIN: u16 = 43;
+
+fn run_node(args: &[&str]) -> (i32, String) {
+    let out = Command::new(NODE)
+        .args(args)
+        .env_remove("ROS_DOMAIN_ID")
+        .output()
+        .expect("node runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn bad_arguments_get_a_message() {
+    for (args, needle) in [
+        (vec!["--rate=-5"], "--rate -5"),
+        (vec!["--rate", "nan"], "--rate NaN"),
+        (vec!["--depth", "0"], "--depth 0"),
+        (vec!["--domain-id", "300"], "--domain-id 300"),
+        (vec!["--vo-mass", "0"], "--vo-mass 0"),
+        (vec!["--namespace", "no//slash"], "node name"),
+        (vec!["--node-name", "bad-name"], "node name"),
+        (vec!["--server", "127.0.0.1#notaport"], "connect to"),
+    ] {
+        let (code, err) = run_node(&args);
+        assert_eq!(code, 1, "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+    // clap's own refusals: exit 2.
+    let (code, err) = run_node(&["--rate", "fast"]);
+    assert_eq!(code, 2, "{err}");
+    let (code, err) = run_node(&["--command-type", "torque"]);
+    assert_eq!(code, 2, "{err}");
+}
+
+#[test]
+fn no_controller_is_a_clear_error() {
+    // A bound socket that never answers.
+    let silent = std::net::UdpSocket::bind("127.0.0.1:0").expect("bind");
+    let port = silent.local_addr().expect("addr").port();
+    let (code, err) = run_node(&["--server", &format!("127.0.0.1#{port}")]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("connect to") && err.contains("timeout"),
+        "{err}"
+    );
+}
+
+fn reliable() -> QosProfile {
+    QosProfile::publisher_default()
+        .reliability(Reliability::Reliable {
+            when_full: WhenFull::DEFAULT,
+        })
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1 })
+}
+
+#[test]
+fn power_service_and_status() {
+    let fake = FakePeer::start(FakePeerConfig {
+        answer_every_period: true,
+        center: [0.45, 0.05, 0.25],
+        ..Default::default()
+    })
+    .expect("fake controller");
+    let mut child = Command::new(NODE)
+        .args([
+            "--server",
+            &fake.address(),
+            "--domain-id",
+            &DOMAIN.to_string(),
+            "--dds-address",
+            "127.0.0.1",
+            "--namespace",
+            "/arm_test",
+            "--duration",
+            "25",
+        ])
+        .env_remove("ROS_DOMAIN_ID")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("node starts");
+
+    let dp = DomainParticipantBuilder::new(DOMAIN)
+        .with_only_networks([std::net::IpAddr::from([127, 0, 0, 1])])
+        .build()
+        .expect("participant");
+    let ctx = Context::from_domain_participant(dp).expect("context");
+    let mut node = ctx
+        .new_node(
+            NodeName::new("/arm_test", "power_client").expect("name"),
+            NodeOptions::new().enable_rosout(false),
+        )
+        .expect("node");
+    let client = node
+        .create_client::<SetBoolRequest, SetBoolResponse>(
+            ServiceMapping::Enhanced,
+            &Name::new("/arm_test", "set_power").expect("name"),
+            &msgs::set_bool_type(),
+            reliable(),
+            reliable(),
+        )
+        .expect("client");
+    let status_topic = node
+        .create_topic(
+            &Name::new("/arm_test", "status").expect("name"),
+            msgs::type_name(MsgType::DiagnosticStatus),
+            &reliable(),
+        )
+        .expect("topic");
+    let status = node
+        .create_subscription::<DiagnosticStatus>(&status_topic, None)
+        .expect("subscription");
+
+    let power_value = |d: &DiagnosticStatus| {
+        d.values
+            .iter()
+            .find(|kv| kv.key == "power_on")
+            .map(|kv| kv.value.clone())
+    };
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let mut response = None;
+    let mut unpowered_seen = false;
+    let mut powered_seen = false;
+    let mut next_request = Instant::now();
+    while Instant::now() < deadline && !(response.is_some() && powered_seen) {
+        while let Ok(Some((s, _))) = status.take() {
+            match power_value(&s).as_deref() {
+                Some("false") if response.is_none() => unpowered_seen = true,
+                Some("true") if response.is_some() => powered_seen = true,
+                _ => {}
+            }
+        }
+        // Until the service is discovered, requests are lost: ask again.
+        if response.is_none() && Instant::now() >= next_request {
+            let _ = client.send_request(SetBoolRequest { data: true });
+            next_request = Instant::now() + Duration::from_millis(500);
+        }
+        if let Ok(Some((_, r))) = client.receive_response() {
+            response = Some(r);
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    let r = response.expect("a response from set_power");
+    assert!(r.success, "{r:?}");
+    assert_eq!(r.message, "power on");
+    assert!(fake.stats().powered, "the controller was powered");
+    assert!(unpowered_seen, "status reported the arm unpowered first");
+    assert!(
+        powered_seen,
+        "status reported power on after the service call"
+    );
+}
