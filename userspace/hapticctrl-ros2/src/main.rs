@@ -14,6 +14,8 @@
 //!   force_command geometry_msgs/WrenchStamped added wrench         best effort, keep last 1
 //! Service:
 //!   set_power     std_srvs/SetBool            arm power on / off
+//! Parameter (rcl_interfaces' parameter services):
+//!   command_type  string: none, impedance or virtmech
 
 use std::net::IpAddr;
 use std::path::PathBuf;
@@ -23,8 +25,8 @@ use std::time::{Duration, Instant};
 use clap::{Parser, ValueEnum};
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
 use ros2_client::{
-    Context, Name, Node, NodeName, NodeOptions, Publisher, QosProfile, Server, ServiceMapping,
-    Subscription,
+    Context, Name, Node, NodeName, NodeOptions, ParameterValue, Publisher, QosProfile, Server,
+    ServiceMapping, Subscription,
 };
 use rustdds::DomainParticipantBuilder;
 
@@ -39,6 +41,7 @@ use virtuose_api::kin::{self, Frames};
 use virtuose_api::{CommandType, VirtContext, VirtError};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+#[value(rename_all = "lower")]
 enum CommandTypeArg {
     /// No coupling: the arm is free.
     None,
@@ -46,6 +49,33 @@ enum CommandTypeArg {
     Impedance,
     /// Virtual mechanism: a virtual object of `--vo-mass` kg.
     Virtmech,
+}
+
+impl CommandTypeArg {
+    fn command(self) -> CommandType {
+        match self {
+            CommandTypeArg::None => CommandType::None,
+            CommandTypeArg::Impedance => CommandType::Impedance,
+            CommandTypeArg::Virtmech => CommandType::VirtMech,
+        }
+    }
+
+    /// The value of the `command_type` parameter.
+    fn name(self) -> &'static str {
+        match self {
+            CommandTypeArg::None => "none",
+            CommandTypeArg::Impedance => "impedance",
+            CommandTypeArg::Virtmech => "virtmech",
+        }
+    }
+
+    fn from_parameter(v: &ParameterValue) -> Result<CommandTypeArg, String> {
+        match v {
+            ParameterValue::String(s) => CommandTypeArg::from_str(s, false)
+                .map_err(|_| format!("command_type {s:?}: none, impedance or virtmech")),
+            other => Err(format!("command_type must be a string, got {other:?}")),
+        }
+    }
 }
 
 /// ROS 2 node for one hapticctrl arm (no ROS installation needed).
@@ -121,6 +151,8 @@ struct Counters {
     setpoints_streamed: u64,
     stream_errors: u64,
     power_requests: u64,
+    command_type_changes: u64,
+    command_type_errors: u64,
 }
 
 struct Publishers {
@@ -263,6 +295,30 @@ fn take_newest<M: 'static + serde::de::DeserializeOwned, T>(
     (n, newest)
 }
 
+/// Set the command type (attaching the virtual object for virtmech) and
+/// return the coupling spring the controller then applies, (N/m, N·m/rad):
+/// its gains for the servo period, in virtmech capped at m/ts² as the
+/// controller does.
+fn apply_command_type(
+    vc: &VirtContext,
+    ct: CommandTypeArg,
+    vo_mass: f32,
+    period_us: u32,
+) -> Result<(f64, f64), String> {
+    let command = ct.command();
+    vc.set_command_type(command)
+        .map_err(|e| format!("set command type {}: {e}", ct.name()))?;
+    let gains = Gains::for_period(Fx::from_ratio(period_us as i64, 1_000_000));
+    let mut k_lin = gains.k_lin.to_f64();
+    if command == CommandType::VirtMech {
+        vc.attach_vo(vo_mass, [1e-3; 3])
+            .map_err(|e| format!("attach virtual object: {e}"))?;
+        let ts = period_us as f64 * 1e-6;
+        k_lin = k_lin.min(vo_mass as f64 / (ts * ts));
+    }
+    Ok((k_lin, gains.k_rot.to_f64()))
+}
+
 fn run(cli: Cli) -> Result<(), String> {
     if !(cli.rate.is_finite() && (0.0..=10_000.0).contains(&cli.rate)) {
         return Err(format!("--rate {}: 0 (every answer) to 10000 Hz", cli.rate));
@@ -300,23 +356,7 @@ fn run(cli: Cli) -> Result<(), String> {
     let ts = period_us as f32 * 1e-6;
     vc.set_time_step(ts)
         .map_err(|e| format!("set time step: {e}"))?;
-    let command = match cli.command_type {
-        CommandTypeArg::None => CommandType::None,
-        CommandTypeArg::Impedance => CommandType::Impedance,
-        CommandTypeArg::Virtmech => CommandType::VirtMech,
-    };
-    vc.set_command_type(command)
-        .map_err(|e| format!("set command type: {e}"))?;
-    // The coupling spring the controller applies (its gains for the servo
-    // period; in virtmech capped at m/ts², as the controller does).
-    let gains = Gains::for_period(Fx::from_ratio(period_us as i64, 1_000_000));
-    let mut k_lin = gains.k_lin.to_f64();
-    let k_rot = gains.k_rot.to_f64();
-    if command == CommandType::VirtMech {
-        vc.attach_vo(cli.vo_mass, [1e-3; 3])
-            .map_err(|e| format!("attach virtual object: {e}"))?;
-        k_lin = k_lin.min(cli.vo_mass as f64 / (ts as f64 * ts as f64));
-    }
+    let (mut k_lin, k_rot) = apply_command_type(&vc, cli.command_type, cli.vo_mass, period_us)?;
     if cli.power_on {
         vc.set_power_on(true)
             .map_err(|e| format!("power on: {e}"))?;
@@ -329,9 +369,37 @@ fn run(cli: Cli) -> Result<(), String> {
     }
     let dp = dp.build().map_err(|e| ros_err("DDS participant", e))?;
     let context = Context::from_domain_participant(dp).map_err(|e| ros_err("ROS 2 context", e))?;
+    // The command_type parameter: validated here, applied by the loop.
+    let (command_tx, command_rx) = std::sync::mpsc::channel::<CommandTypeArg>();
+    let command_tx = std::sync::Mutex::new(command_tx);
+    let options = NodeOptions::new()
+        .enable_rosout(false)
+        .start_parameter_services(true)
+        .declare_parameter(
+            "command_type",
+            ParameterValue::String(cli.command_type.name().into()),
+        )
+        .parameter_validator(Box::new(|name, value| match name {
+            "command_type" => CommandTypeArg::from_parameter(value).map(|_| ()),
+            _ => Ok(()),
+        }))
+        .parameter_set_action(Box::new(move |name, value| {
+            if name == "command_type" {
+                let c = CommandTypeArg::from_parameter(value)?;
+                let tx = command_tx.lock().map_err(|_| "node stopping".to_owned())?;
+                tx.send(c).map_err(|_| "node stopping".to_owned())?;
+            }
+            Ok(())
+        }));
     let mut node = context
-        .new_node(node_name, NodeOptions::new().enable_rosout(false))
+        .new_node(node_name, options)
         .map_err(|e| ros_err("ROS 2 node", e))?;
+    // The parameter services run in the node's spinner.
+    let spinner = node.spinner().map_err(|e| ros_err("ROS 2 spinner", e))?;
+    std::thread::Builder::new()
+        .name("ros2-spinner".into())
+        .spawn(move || futures::executor::block_on(spinner.spin()))
+        .map_err(|e| format!("spinner thread: {e}"))?;
     let sq = streaming_qos(cli.depth);
     let pubs = Publishers {
         pose: create_publisher(&mut node, "pose", MsgType::PoseStamped, &sq)?,
@@ -439,6 +507,19 @@ fn run(cli: Cli) -> Result<(), String> {
             };
             if power_service.send_response(id, resp).is_err() {
                 c.publish_errors += 1;
+            }
+        }
+
+        while let Ok(ct) = command_rx.try_recv() {
+            match apply_command_type(&vc, ct, cli.vo_mass, period_us) {
+                Ok((k, _)) => {
+                    k_lin = k;
+                    c.command_type_changes += 1;
+                }
+                Err(e) => {
+                    eprintln!("hapticctrl-ros2: {e}");
+                    c.command_type_errors += 1;
+                }
             }
         }
 
@@ -600,6 +681,8 @@ fn run(cli: Cli) -> Result<(), String> {
     println!("setpoints_streamed: {}", c.setpoints_streamed);
     println!("stream_errors: {}", c.stream_errors);
     println!("power_requests: {}", c.power_requests);
+    println!("command_type_changes: {}", c.command_type_changes);
+    println!("command_type_errors: {}", c.command_type_errors);
     println!("link_lost: {}", link.lost);
     println!(
         "cpu_us_per_answer: {:.1}",

@@ -1,7 +1,9 @@
 //! The node as a process: its command line refuses bad arguments with a
 //! message (no panic), and, connected to the fake controller, it powers the
 //! arm on when a ROS 2 client calls its `set_power` service (std_srvs/SetBool)
-//! and reports it on its reliable `status` topic. The client is a second
+//! and reports it on its reliable `status` topic, and it sets the command
+//! type when a client sets its `command_type` parameter (rcl_interfaces'
+//! set_parameters service), refusing an unknown one. The client is a second
 //! ros2-client participant (DDS domain 43, loopback only); the independent
 //! DDS peer is tests/ros2/run.sh.
 
@@ -10,7 +12,11 @@ use std::time::{Duration, Instant};
 
 use hapticctrl_ros2::msgs::{self, DiagnosticStatus, MsgType, SetBoolRequest, SetBoolResponse};
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
-use ros2_client::{Context, Name, NodeName, NodeOptions, QosProfile, ServiceMapping};
+use ros2_client::rcl_interfaces::{SetParametersRequest, SetParametersResponse};
+use ros2_client::{
+    Context, Name, NodeName, NodeOptions, Parameter, ParameterValue, QosProfile, ServiceMapping,
+    ServiceTypeName,
+};
 use rustdds::DomainParticipantBuilder;
 use virtuose_api::fake_peer::{FakePeer, FakePeerConfig};
 
@@ -76,7 +82,7 @@ fn reliable() -> QosProfile {
 }
 
 #[test]
-fn power_service_and_status() {
+fn power_service_status_and_command_type_parameter() {
     let fake = FakePeer::start(FakePeerConfig {
         answer_every_period: true,
         center: [0.45, 0.05, 0.25],
@@ -122,6 +128,16 @@ fn power_service_and_status() {
             reliable(),
         )
         .expect("client");
+    let params = node
+        .create_client::<SetParametersRequest, SetParametersResponse>(
+            ServiceMapping::Enhanced,
+            &Name::new("/arm_test/hapticctrl", "set_parameters").expect("name"),
+            &ServiceTypeName::new("rcl_interfaces", "SetParameters"),
+            // ros2-client's parameter services: reliable, volatile.
+            QosProfile::publisher_default(),
+            QosProfile::publisher_default(),
+        )
+        .expect("parameter client");
     let status_topic = node
         .create_topic(
             &Name::new("/arm_test", "status").expect("name"),
@@ -162,8 +178,50 @@ fn power_service_and_status() {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
+    // The command type: an unknown one refused, virtmech applied.
+    let mut set_command = |value: &str| {
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let mut next_request = Instant::now();
+        // Responses to the earlier calls' repeated requests are skipped.
+        let mut ids = Vec::new();
+        while Instant::now() < deadline {
+            if Instant::now() >= next_request {
+                let id = params.send_request(SetParametersRequest {
+                    parameter: vec![Parameter {
+                        name: "command_type".into(),
+                        value: ParameterValue::String(value.into()),
+                    }
+                    .into()],
+                });
+                if let Ok(id) = id {
+                    ids.push(id);
+                }
+                next_request = Instant::now() + Duration::from_millis(500);
+            }
+            while let Ok(Some((id, r))) = params.receive_response() {
+                if ids.contains(&id) {
+                    return r.results.into_iter().next();
+                }
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        None
+    };
+    let refused = set_command("torque").expect("a response to command_type torque");
+    assert!(!refused.successful, "{refused:?}");
+    assert!(refused.reason.contains("torque"), "{refused:?}");
+    assert_eq!(fake.stats().command_type, Some(1), "impedance at start");
+    let applied = set_command("virtmech").expect("a response to command_type virtmech");
+    assert!(applied.successful, "{applied:?}");
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while fake.stats().command_type != Some(2) && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let _ = child.kill();
     let _ = child.wait();
+    let st = fake.stats();
+    assert_eq!(st.command_type, Some(2), "the controller got virtmech");
+    assert!(st.attached, "and the virtual object");
     let r = response.expect("a response from set_power");
     assert!(r.success, "{r:?}");
     assert_eq!(r.message, "power on");
