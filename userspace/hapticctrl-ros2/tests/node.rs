@@ -179,7 +179,7 @@ fn power_service_status_and_command_type_parameter() {
         std::thread::sleep(Duration::from_millis(10));
     }
     // The command type: an unknown one refused, virtmech applied.
-    let mut set_command = |value: &str| {
+    let set_command = |value: &str| {
         let deadline = Instant::now() + Duration::from_secs(10);
         let mut next_request = Instant::now();
         // Responses to the earlier calls' repeated requests are skipped.
