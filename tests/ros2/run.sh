@@ -18,6 +18,9 @@
 # (default 47600) -> guest:5000 (a few minutes, most of it the guest's boot);
 # the emulated guest answers at its own pace (TCG), so the rate checked there
 # is the node's answer rate, not 500 Hz.
+# Environment (scripts/bench-ros2.sh): HAP_ROS2_PROFILE=release for the
+# node's release build, HAP_ROS2_SECONDS (fake: 12) for a longer run,
+# HAP_ROS2_NODE_ARGS for more node options (e.g. "--rate 500").
 # Prints every check, then "ros2-TARGET: N passed, N failed".
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
@@ -74,10 +77,15 @@ export CYCLONEDDS_URI="file://$results/cyclonedds.xml"
 # ---- the node, the fake controller and the joint check (debug builds: the
 # ones cargo test --workspace compiles)
 t_build=$(date +%s)
-(cd "$ROOT/userspace" && cargo build --quiet -p hapticctrl-ros2 --bins --examples -p virtuose_api --example fake_controller) \
+profile=${HAP_ROS2_PROFILE:-debug}
+case "$profile" in debug) pflag="" ;; release) pflag=--release ;; *) die "HAP_ROS2_PROFILE=$profile: debug or release" ;; esac
+seconds=${HAP_ROS2_SECONDS:-12}
+[[ "$seconds" =~ ^[0-9]+$ ]] && [ "$seconds" -ge 8 ] || die "HAP_ROS2_SECONDS=$seconds: whole seconds >= 8"
+read -r -a node_args <<< "${HAP_ROS2_NODE_ARGS:-}"
+(cd "$ROOT/userspace" && cargo build --quiet $pflag -p hapticctrl-ros2 --bins --examples -p virtuose_api --example fake_controller) \
   > "$results/build.log" 2>&1 || { tail -20 "$results/build.log"; nok "build hapticctrl-ros2"; finish; }
-echo "# FIGURE build (debug, incremental): $(( $(date +%s) - t_build )) s"
-bin="$ROOT/userspace/target/debug"
+echo "# FIGURE build ($profile, incremental): $(( $(date +%s) - t_build )) s"
+bin="$ROOT/userspace/target/$profile"
 node="$bin/hapticctrl-ros2"
 
 fv() { sed -n "s/^$1: //p" "$2" | head -1; }
@@ -110,14 +118,15 @@ common_checks() {
   check_num "forward kinematics of the joint states = the pose (m)" "$(fv max_position_error_m "$results/joints.txt")" '<' 1e-5
   check_num "forward kinematics of the joint states = the orientation" "$(fv max_orientation_error "$results/joints.txt")" '<' 1e-5
   echo "# FIGURE DDS-added latency, answer -> Cyclone subscriber ($target): pose p50 $(fv pose.latency_us_p50 "$P") us, p99 $(fv pose.latency_us_p99 "$P") us; joint_states p50 $(fv joint_states.latency_us_p50 "$P") us, p99 $(fv joint_states.latency_us_p99 "$P") us"
-  echo "# FIGURE node ($target, debug build): $(fv answer_rate_hz "$N") answers/s, CPU $(fv cpu_us_per_answer "$N") us per answer ($(fv published "$N") samples on 4 streaming topics)"
+  echo "# FIGURE node ($target, $profile build, ${node_args[*]:-every answer}): $(fv answer_rate_hz "$N") answers/s, CPU $(fv cpu_us_per_answer "$N") us per answer, $(awk -v c="$(fv cpu_s "$N")" -v n="$(fv published "$N")" 'BEGIN { printf "%.1f", (n > 0 ? c * 1e6 / n : 0) }') us per sample ($(fv published "$N") samples on 4 streaming topics, $(fv cpu_s "$N") s CPU in $(fv wall_s "$N") s)"
+  echo "# FIGURE pose samples lost between the node and the peer ($target, approximate: 1 - peer rate / node answer rate): $(awk -v p="$(fv pose.rate_hz "$P")" -v n="$(fv answer_rate_hz "$N")" 'BEGIN { printf "%.2f %%", (n > 0 ? 100 * (1 - p / n) : 0) }')"
 }
 
 if [ "$target" = fake ]; then
   fc="$bin/examples/fake_controller"
   center=0.45,0.05,0.25; amplitude=0.05,0.02,0; tgt=0.46,0.05,0.26; freq=0.5
   mkfifo "$results/fake.in"
-  "$fc" --duration 60 --period-us 1000 --center "$center" --amplitude "$amplitude" \
+  "$fc" --duration $((seconds + 60)) --period-us 1000 --center "$center" --amplitude "$amplitude" \
     < "$results/fake.in" > "$results/fake.txt" 2> "$results/fake.err" &
   fpid=$!
   exec {hold}> "$results/fake.in"
@@ -125,10 +134,10 @@ if [ "$target" = fake ]; then
   fport=$(sed -n 's/^PORT //p' "$results/fake.txt")
   [[ "$fport" =~ ^[0-9]+$ ]] || { exec {hold}>&-; nok "fake controller did not start: $(cat "$results/fake.err")"; finish; }
   echo "# fake controller on 127.0.0.1:$fport (1 kHz answers)"
-  "$node" --server "127.0.0.1#$fport" --domain-id "$domain" --dds-address 127.0.0.1 --duration 12 \
-    --power-on --command-type virtmech > "$results/node.txt" 2> "$results/node.err" &
+  "$node" --server "127.0.0.1#$fport" --domain-id "$domain" --dds-address 127.0.0.1 --duration "$seconds" \
+    --power-on --command-type virtmech "${node_args[@]}" > "$results/node.txt" 2> "$results/node.err" &
   npid=$!
-  timeout 60 "$py" "$ROOT/tests/ros2/peer.py" --domain "$domain" --duration 9 --target "$tgt" --target-after 4 \
+  timeout $((seconds + 60)) "$py" "$ROOT/tests/ros2/peer.py" --domain "$domain" --duration $((seconds - 3)) --target "$tgt" --target-after 4 \
     --samples "$results/samples.txt" > "$results/peer.txt" 2> "$results/peer.err"
   prc=$?
   wait "$npid"; nrc=$?
@@ -136,7 +145,7 @@ if [ "$target" = fake ]; then
   wait "$fpid"
   sed 's/^/# node: /' "$results/node.err"
   [ "$prc" = 0 ] && ok "the Cyclone peer ran" || { tail -5 "$results/peer.err"; nok "the Cyclone peer exited with $prc"; }
-  [ "$nrc" = 0 ] && ok "the node ran its 12 s and exited with 0" || nok "the node exited with $nrc"
+  [ "$nrc" = 0 ] && ok "the node ran its $seconds s and exited with 0" || nok "the node exited with $nrc"
   common_checks 500
   sed 's/^/# fake: /' "$results/fake.txt"
   check_num "the node opened one session" "$(fv frames.open_session "$results/fake.txt")" '==' 1
