@@ -119,7 +119,7 @@ common_checks() {
   check_num "forward kinematics of the joint states = the orientation" "$(fv max_orientation_error "$results/joints.txt")" '<' 1e-5
   echo "# FIGURE DDS-added latency, answer -> Cyclone subscriber ($target): pose p50 $(fv pose.latency_us_p50 "$P") us, p99 $(fv pose.latency_us_p99 "$P") us; joint_states p50 $(fv joint_states.latency_us_p50 "$P") us, p99 $(fv joint_states.latency_us_p99 "$P") us"
   echo "# FIGURE node ($target, $profile build, ${node_args[*]:-every answer}): $(fv answer_rate_hz "$N") answers/s, CPU $(fv cpu_us_per_answer "$N") us per answer, $(awk -v c="$(fv cpu_s "$N")" -v n="$(fv published "$N")" 'BEGIN { printf "%.1f", (n > 0 ? c * 1e6 / n : 0) }') us per sample ($(fv published "$N") samples on 4 streaming topics, $(fv cpu_s "$N") s CPU in $(fv wall_s "$N") s)"
-  echo "# FIGURE pose samples lost between the node and the peer ($target, approximate: 1 - peer rate / node answer rate): $(awk -v p="$(fv pose.rate_hz "$P")" -v n="$(fv answer_rate_hz "$N")" 'BEGIN { printf "%.2f %%", (n > 0 ? 100 * (1 - p / n) : 0) }')"
+  echo "# FIGURE rates ($target): node $(fv answer_rate_hz "$N") answers/s over its run, peer pose $(fv pose.rate_hz "$P") Hz, joint_states $(fv joint_states.rate_hz "$P") Hz over the samples' stamps; load average $(cut -d' ' -f1-3 /proc/loadavg)"
 }
 
 if [ "$target" = fake ]; then

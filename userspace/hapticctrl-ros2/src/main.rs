@@ -196,6 +196,17 @@ fn status_qos() -> QosProfile {
         .history(History::KeepLast { depth: 1 })
 }
 
+/// Services: ROS 2's default for services (reliable, volatile, keep last
+/// 10), which clients of every ROS 2 implementation request.
+fn service_qos() -> QosProfile {
+    QosProfile::publisher_default()
+        .reliability(Reliability::Reliable {
+            when_full: WhenFull::Fail,
+        })
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 10 })
+}
+
 fn ros_err(what: &str, e: impl std::fmt::Debug) -> String {
     format!("{what}: {e:?}")
 }
@@ -430,8 +441,8 @@ fn run(cli: Cli) -> Result<(), String> {
             ServiceMapping::Enhanced,
             &Name::new("", "set_power").map_err(|e| ros_err("set_power", e))?,
             &msgs::set_bool_type(),
-            status_qos(),
-            status_qos(),
+            service_qos(),
+            service_qos(),
         )
         .map_err(|e| ros_err("set_power service", e))?;
     eprintln!(

@@ -124,8 +124,9 @@ fn power_service_status_and_command_type_parameter() {
             ServiceMapping::Enhanced,
             &Name::new("/arm_test", "set_power").expect("name"),
             &msgs::set_bool_type(),
-            reliable(),
-            reliable(),
+            // ROS 2's default service QoS: reliable, volatile.
+            QosProfile::publisher_default().history(History::KeepLast { depth: 10 }),
+            QosProfile::publisher_default().history(History::KeepLast { depth: 10 }),
         )
         .expect("client");
     let params = node
