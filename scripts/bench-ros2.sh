@@ -3,7 +3,8 @@
 # publication rate, DDS-added latency from the controller's answer to a
 # Cyclone DDS subscriber (p50/p99), CPU per sample, with the node's release
 # build against the fake controller (1 kHz answers), on loopback (host
-# native): every answer for 30 s, then a set rate of 500 Hz. The checks of
+# native): every answer for 30 s, then a set rate of 500 Hz; the latency
+# also at a ros2-client subscriber (examples/latency_probe.rs). The checks of
 # tests/ros2/run.sh run too.
 #   scripts/bench-ros2.sh [SECONDS]
 set -uo pipefail
@@ -13,7 +14,8 @@ seconds=${1:-30}
 rc=0
 for args in "" "--rate 500"; do
   echo "## node options: ${args:-(every answer)}"
-  HAP_ROS2_PROFILE=release HAP_ROS2_SECONDS=$seconds HAP_ROS2_NODE_ARGS="$args" \
+  min_rate=500; [ -n "$args" ] && min_rate=475
+  HAP_ROS2_PROFILE=release HAP_ROS2_SECONDS=$seconds HAP_ROS2_NODE_ARGS="$args" HAP_ROS2_MIN_RATE=$min_rate HAP_ROS2_PROBE=1 \
     bash "$HAP_ROOT/tests/ros2/run.sh" --target fake --results "$HAP_ROOT/build/bench-ros2${args:+-rate}" \
     | grep -E '^# FIGURE|^ros2-|^not ok' || rc=1
 done

@@ -20,7 +20,9 @@
 # is the node's answer rate, not 500 Hz.
 # Environment (scripts/bench-ros2.sh): HAP_ROS2_PROFILE=release for the
 # node's release build, HAP_ROS2_SECONDS (fake: 12) for a longer run,
-# HAP_ROS2_NODE_ARGS for more node options (e.g. "--rate 500").
+# HAP_ROS2_NODE_ARGS for more node options (e.g. "--rate 500"),
+# HAP_ROS2_MIN_RATE for the rate the peer must see (fake: 500 Hz),
+# HAP_ROS2_PROBE=1 for a ros2-client subscriber measuring the latency too.
 # Prints every check, then "ros2-TARGET: N passed, N failed".
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
@@ -137,16 +139,25 @@ if [ "$target" = fake ]; then
   "$node" --server "127.0.0.1#$fport" --domain-id "$domain" --dds-address 127.0.0.1 --duration "$seconds" \
     --power-on --command-type virtmech "${node_args[@]}" > "$results/node.txt" 2> "$results/node.err" &
   npid=$!
+  probe_pid=""
+  if [ "${HAP_ROS2_PROBE:-0}" = 1 ]; then
+    "$bin/examples/latency_probe" "$domain" /hapticctrl $((seconds - 3)) > "$results/probe.txt" 2>&1 &
+    probe_pid=$!
+  fi
   timeout $((seconds + 60)) "$py" "$ROOT/tests/ros2/peer.py" --domain "$domain" --duration $((seconds - 3)) --target "$tgt" --target-after 4 \
     --samples "$results/samples.txt" > "$results/peer.txt" 2> "$results/peer.err"
   prc=$?
   wait "$npid"; nrc=$?
+  if [ -n "$probe_pid" ]; then
+    wait "$probe_pid"
+    echo "# FIGURE DDS-added latency, answer -> ros2-client subscriber (fake, $(fv probe.samples "$results/probe.txt") samples): pose p50 $(fv probe.latency_us_p50 "$results/probe.txt") us, p99 $(fv probe.latency_us_p99 "$results/probe.txt") us, max $(fv probe.latency_us_max "$results/probe.txt") us"
+  fi
   exec {hold}>&-
   wait "$fpid"
   sed 's/^/# node: /' "$results/node.err"
   [ "$prc" = 0 ] && ok "the Cyclone peer ran" || { tail -5 "$results/peer.err"; nok "the Cyclone peer exited with $prc"; }
   [ "$nrc" = 0 ] && ok "the node ran its $seconds s and exited with 0" || nok "the node exited with $nrc"
-  common_checks 500
+  common_checks "${HAP_ROS2_MIN_RATE:-500}"
   sed 's/^/# fake: /' "$results/fake.txt"
   check_num "the node opened one session" "$(fv frames.open_session "$results/fake.txt")" '==' 1
   check_num "and closed it" "$(fv frames.close_session "$results/fake.txt")" '==' 1
