@@ -110,6 +110,28 @@ pub fn status_report(
     }
 }
 
+/// No answer from the controller for this long: the status turns STALE.
+pub const STALE_AFTER: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// The status when the controller has not answered for `silent`: level
+/// STALE, no values (the last answer's state is no longer known).
+pub fn stale_report(
+    name: &str,
+    hardware_id: &str,
+    silent: std::time::Duration,
+) -> DiagnosticStatus {
+    DiagnosticStatus {
+        level: DiagnosticStatus::STALE,
+        name: name.to_owned(),
+        message: format!(
+            "no answer from the controller for {:.1} s",
+            silent.as_secs_f64()
+        ),
+        hardware_id: hardware_id.to_owned(),
+        values: Vec::new(),
+    }
+}
+
 /// The coupling set-point (virtual-object pose streamed to the controller)
 /// for the subscribed `target` pose (if any) plus the added `wrench` (if
 /// any): the target itself; with a wrench, offset by the spring
@@ -186,6 +208,14 @@ mod tests {
         let estop = status_report("n", "h", status::EMERGENCY_STOP, 0, 1);
         assert_eq!(estop.level, DiagnosticStatus::ERROR);
         assert_eq!(estop.message, "emergency_stop");
+    }
+
+    #[test]
+    fn stale_status() {
+        let d = stale_report("n", "h", std::time::Duration::from_millis(1500));
+        assert_eq!(d.level, DiagnosticStatus::STALE);
+        assert_eq!(d.message, "no answer from the controller for 1.5 s");
+        assert!(d.values.is_empty());
     }
 
     #[test]

@@ -36,7 +36,7 @@ use hapticctrl_ros2::msgs::{
     self, header_now, DiagnosticStatus, JointState, Joy, MsgType, PoseStamped, SetBoolRequest,
     SetBoolResponse, Twist, TwistStamped, Wrench, WrenchStamped,
 };
-use hapticctrl_ros2::{buttons, joint_names, setpoint, status_report};
+use hapticctrl_ros2::{buttons, joint_names, setpoint, stale_report, status_report, STALE_AFTER};
 use virtuose_api::kin::{self, Frames};
 use virtuose_api::{CommandType, VirtContext, VirtError};
 
@@ -472,6 +472,8 @@ fn run(cli: Cli) -> Result<(), String> {
     let mut target_twist: Option<([f32; 6], Instant)> = None;
     let mut added_wrench: Option<([f32; 6], Instant)> = None;
     let t_start = Instant::now();
+    let mut last_answer_at = t_start;
+    let mut stale = false;
     let cpu_start = cpu_seconds();
     let end = (cli.duration > 0.0).then(|| t_start + Duration::from_secs_f64(cli.duration));
 
@@ -535,6 +537,21 @@ fn run(cli: Cli) -> Result<(), String> {
         }
 
         if !fresh {
+            // No answer for a while: the status says so once (level STALE),
+            // the last state stays what subscribers have.
+            if !stale && last_answer_at.elapsed() >= STALE_AFTER {
+                stale = true;
+                let r = pubs.status.publish(stale_report(
+                    &status_name,
+                    &hardware_id,
+                    last_answer_at.elapsed(),
+                ));
+                match r {
+                    Ok(()) => c.status_published += 1,
+                    Err(_) => c.publish_errors += 1,
+                }
+                last_status = None;
+            }
             continue;
         }
         let s = match snapshot(&vc) {
@@ -543,6 +560,8 @@ fn run(cli: Cli) -> Result<(), String> {
             Err(e) => return Err(format!("reading the controller's answer: {e}")),
         };
         c.answers += 1;
+        last_answer_at = Instant::now();
+        stale = false;
 
         // ---- publish the arm's state, all with the same stamp
         let header = header_now(&cli.frame_id);

@@ -3,7 +3,8 @@
 //! arm on when a ROS 2 client calls its `set_power` service (std_srvs/SetBool)
 //! and reports it on its reliable `status` topic, and it sets the command
 //! type when a client sets its `command_type` parameter (rcl_interfaces'
-//! set_parameters service), refusing an unknown one. The client is a second
+//! set_parameters service), refusing an unknown one; when the controller
+//! stops answering, the status turns STALE. The client is a second
 //! ros2-client participant (DDS domain 43, loopback only); the independent
 //! DDS peer is tests/ros2/run.sh.
 
@@ -83,7 +84,7 @@ fn reliable() -> QosProfile {
 
 #[test]
 fn power_service_status_and_command_type_parameter() {
-    let fake = FakePeer::start(FakePeerConfig {
+    let mut fake = FakePeer::start(FakePeerConfig {
         answer_every_period: true,
         center: [0.45, 0.05, 0.25],
         ..Default::default()
@@ -218,9 +219,23 @@ fn power_service_status_and_command_type_parameter() {
     while fake.stats().command_type != Some(2) && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(20));
     }
+    let st = fake.stats();
+    // The controller goes silent: the status turns STALE.
+    fake.stop();
+    let deadline = Instant::now() + Duration::from_secs(8);
+    let mut stale = None;
+    while stale.is_none() && Instant::now() < deadline {
+        while let Ok(Some((s, _))) = status.take() {
+            if s.level == DiagnosticStatus::STALE {
+                stale = Some(s);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let _ = child.kill();
     let _ = child.wait();
-    let st = fake.stats();
+    let stale = stale.expect("a STALE status after the controller stopped");
+    assert!(stale.message.contains("no answer"), "{stale:?}");
     assert_eq!(st.command_type, Some(2), "the controller got virtmech");
     assert!(st.attached, "and the virtual object");
     let r = response.expect("a response from set_power");
