@@ -162,6 +162,10 @@ if [ "$target" = fake ]; then
   check_num "the node opened one session" "$(fv frames.open_session "$results/fake.txt")" '==' 1
   check_num "and closed it" "$(fv frames.close_session "$results/fake.txt")" '==' 1
   check_num "command type virtmech (2)" "$(fv command_type "$results/fake.txt")" '==' 2
+  # Before the targets, nothing streams: the node keeps the session alive
+  # with its time step (a bridge closes a session silent for 3 s).
+  check_num "keep-alive requests while no set-point streamed" "$(fv keepalives "$results/node.txt")" '>=' 2
+  check_num "the controller got them (time step requests: the first one and the keep-alives)" "$(fv frames.set_time_step "$results/fake.txt")" '==' "$(( $(fv keepalives "$results/node.txt") + 1 ))"
   streamed=$(fv setpoints_streamed "$results/node.txt")
   check_num "the controller received the set-points (VPr frames; UDP on loopback may drop a few)" "$(fv frames.vpr_stream "$results/fake.txt")" '>=' "$(awk -v n="${streamed:-0}" 'BEGIN { printf "%d", 0.99 * n }')"
   check_num "no more VPr frames than the node streamed" "$(fv frames.vpr_stream "$results/fake.txt")" '<=' "${streamed:-0}"
@@ -233,6 +237,8 @@ check_num "module: nothing malformed reached it" "$(gv hap_stats.txt frames_reje
 check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
 check_num "bridge: authenticated (not --insecure)" "$(gv proto_interface.txt insecure)" '==' 0
 check_num "bridge: no frame failed its tag" "$(gv proto_interface.txt rejected_bad_tag)" '==' 0
+check_num "bridge: the session did not expire (the node's keep-alives while it streams nothing)" "$(gv proto_interface.txt sessions_expired)" '==' 0
+check_num "bridge: the node closed its session" "$(gv proto_interface.txt sessions_closed)" '==' 1
 first=$(fv first_target_ns "$results/peer.txt")
 tgt=$(fv target "$results/peer.txt")
 "$py" "$ROOT/tests/ros2/check.py" "$results/samples.txt" module "${first:-0}" "${tgt:-0,0,0}" > "$results/check.txt" 2>&1

@@ -135,6 +135,10 @@ struct Cli {
     duration: f64,
 }
 
+/// Longest silence towards the controller (a third of the bridge's default
+/// session timeout).
+const KEEPALIVE: Duration = Duration::from_secs(1);
+
 /// The node's counters, printed at the end as `key: value` lines.
 #[derive(Debug, Default)]
 struct Counters {
@@ -153,6 +157,7 @@ struct Counters {
     power_requests: u64,
     command_type_changes: u64,
     command_type_errors: u64,
+    keepalives: u64,
 }
 
 struct Publishers {
@@ -368,6 +373,7 @@ fn run(cli: Cli) -> Result<(), String> {
     vc.set_time_step(ts)
         .map_err(|e| format!("set time step: {e}"))?;
     let (mut k_lin, k_rot) = apply_command_type(&vc, cli.command_type, cli.vo_mass, period_us)?;
+    let mut command_type = cli.command_type;
     if cli.power_on {
         vc.set_power_on(true)
             .map_err(|e| format!("power on: {e}"))?;
@@ -472,6 +478,7 @@ fn run(cli: Cli) -> Result<(), String> {
     let mut target_twist: Option<([f32; 6], Instant)> = None;
     let mut added_wrench: Option<([f32; 6], Instant)> = None;
     let t_start = Instant::now();
+    let mut last_sent = t_start;
     let mut last_answer_at = t_start;
     let mut stale = false;
     let cpu_start = cpu_seconds();
@@ -524,9 +531,13 @@ fn run(cli: Cli) -> Result<(), String> {
         }
 
         while let Ok(ct) = command_rx.try_recv() {
+            if ct == command_type {
+                continue;
+            }
             match apply_command_type(&vc, ct, cli.vo_mass, period_us) {
                 Ok((k, _)) => {
                     k_lin = k;
+                    command_type = ct;
                     c.command_type_changes += 1;
                 }
                 Err(e) => {
@@ -682,9 +693,23 @@ fn run(cli: Cli) -> Result<(), String> {
         ) {
             let twist = target_twist.map(|(t, _)| t).unwrap_or([0.0; 6]);
             match vc.set_speed(&twist).and_then(|()| vc.set_position(&sp)) {
-                Ok(()) => c.setpoints_streamed += 1,
+                Ok(()) => {
+                    c.setpoints_streamed += 1;
+                    last_sent = Instant::now();
+                }
                 Err(_) => c.stream_errors += 1,
             }
+        }
+        // The bridge closes a session its client leaves silent for its
+        // --session-timeout-ms (3 s by default): without set-points to
+        // stream, the node re-sends its time step (acknowledged, changes
+        // nothing) every KEEPALIVE.
+        if last_sent.elapsed() >= KEEPALIVE {
+            match vc.set_time_step(ts) {
+                Ok(()) => c.keepalives += 1,
+                Err(_) => c.stream_errors += 1,
+            }
+            last_sent = Instant::now();
         }
     }
 
@@ -713,6 +738,7 @@ fn run(cli: Cli) -> Result<(), String> {
     println!("power_requests: {}", c.power_requests);
     println!("command_type_changes: {}", c.command_type_changes);
     println!("command_type_errors: {}", c.command_type_errors);
+    println!("keepalives: {}", c.keepalives);
     println!("link_lost: {}", link.lost);
     println!(
         "cpu_us_per_answer: {:.1}",
