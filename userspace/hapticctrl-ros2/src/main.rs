@@ -1,5 +1,5 @@
 //! hapticctrl-ros2: one ROS 2 node per arm (see the crate's documentation
-//! and Documentation/userguide.md, "ROS 2").
+//! and Documentation/userguide.md, "hapticctrl-ros2").
 //!
 //! Publishes (relative to the node's namespace):
 //!   pose          geometry_msgs/PoseStamped   handle pose          best effort, keep last N
@@ -177,7 +177,8 @@ struct Subscriptions {
 
 /// Streaming: samples may be lost, the newest counts. A depth above 1 keeps
 /// a burst of samples published between two runs of RustDDS's event loop
-/// (Documentation/performance.md: depth 1 lost up to a few % at 1 kHz).
+/// instead of overwriting all but the last (Documentation/userguide.md,
+/// "hapticctrl-ros2", QoS).
 fn streaming_qos(depth: usize) -> QosProfile {
     QosProfile::subscription_default()
         .reliability(Reliability::BestEffort)
