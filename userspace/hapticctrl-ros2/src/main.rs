@@ -494,6 +494,7 @@ fn run(cli: Cli) -> Result<(), String> {
             None => match waiter.wait_newer(gen, Duration::from_millis(50)) {
                 Some((g, _)) => {
                     gen = g;
+                    last_answer_at = Instant::now();
                     true
                 }
                 None => false,
@@ -507,10 +508,14 @@ fn run(cli: Cli) -> Result<(), String> {
                 if next_tick < Instant::now() {
                     next_tick = Instant::now() + p;
                 }
+                // The newest answer, again if no newer one came, until the
+                // controller has been silent for STALE_AFTER.
                 let (g, _) = waiter.current();
-                let any = g != 0;
-                gen = g;
-                any
+                if g != gen {
+                    gen = g;
+                    last_answer_at = Instant::now();
+                }
+                g != 0 && last_answer_at.elapsed() < STALE_AFTER
             }
         };
 
@@ -572,7 +577,6 @@ fn run(cli: Cli) -> Result<(), String> {
             Err(e) => return Err(format!("reading the controller's answer: {e}")),
         };
         c.answers += 1;
-        last_answer_at = Instant::now();
         stale = false;
 
         // ---- publish the arm's state, all with the same stamp

@@ -248,3 +248,77 @@ fn power_service_status_and_command_type_parameter() {
         "status reported power on after the service call"
     );
 }
+
+/// At a set rate the node republishes the newest answer, but not once the
+/// controller has gone silent: the status turns STALE there too.
+#[test]
+fn set_rate_goes_stale_when_the_controller_stops() {
+    let mut fake = FakePeer::start(FakePeerConfig {
+        answer_every_period: true,
+        center: [0.45, 0.05, 0.25],
+        ..Default::default()
+    })
+    .expect("fake controller");
+    let mut child = Command::new(NODE)
+        .args([
+            "--server",
+            &fake.address(),
+            "--domain-id",
+            &DOMAIN.to_string(),
+            "--dds-address",
+            "127.0.0.1",
+            "--namespace",
+            "/arm_rate",
+            "--rate",
+            "200",
+            "--duration",
+            "25",
+        ])
+        .env_remove("ROS_DOMAIN_ID")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("node starts");
+    let dp = DomainParticipantBuilder::new(DOMAIN)
+        .with_only_networks([std::net::IpAddr::from([127, 0, 0, 1])])
+        .build()
+        .expect("participant");
+    let ctx = Context::from_domain_participant(dp).expect("context");
+    let mut node = ctx
+        .new_node(
+            NodeName::new("/arm_rate", "status_reader").expect("name"),
+            NodeOptions::new().enable_rosout(false),
+        )
+        .expect("node");
+    let topic = node
+        .create_topic(
+            &Name::new("/arm_rate", "status").expect("name"),
+            msgs::type_name(MsgType::DiagnosticStatus),
+            &reliable(),
+        )
+        .expect("topic");
+    let status = node
+        .create_subscription::<DiagnosticStatus>(&topic, None)
+        .expect("subscription");
+    let wait_for = |level_is_stale: bool, secs: u64| {
+        let deadline = Instant::now() + Duration::from_secs(secs);
+        while Instant::now() < deadline {
+            while let Ok(Some((s, _))) = status.take() {
+                if (s.level == DiagnosticStatus::STALE) == level_is_stale {
+                    return Some(s);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        None
+    };
+    let live = wait_for(false, 15);
+    fake.stop();
+    let stale = wait_for(true, 8);
+    let _ = child.kill();
+    let _ = child.wait();
+    let live = live.expect("a status while the controller answered");
+    assert!(live.values.iter().any(|kv| kv.key == "cycle"), "{live:?}");
+    let stale = stale.expect("a STALE status after the controller stopped");
+    assert!(stale.message.contains("no answer"), "{stale:?}");
+}
