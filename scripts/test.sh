@@ -74,6 +74,11 @@ if [ "$host" = 1 ]; then
   bash tests/python/run.sh 2>&1 | tee "$out"
   line=$(grep -E '^python: [0-9]+ passed' "$out" | tail -1)
   add "Python package (pytest, fake controller, $(( $(date +%s) - t_py )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+  log "hapticctrl-ros2 against Cyclone DDS (Python) as a ROS 2 peer, fake controller"
+  rm -f "$out"; out=$(mktemp); t_ros2=$(date +%s)
+  bash tests/ros2/run.sh --target fake 2>&1 | tee "$out"
+  line=$(grep -E '^ros2-fake: [0-9]+ passed' "$out" | tail -1)
+  add "ROS 2 node vs Cyclone DDS (fake controller, $(( $(date +%s) - t_ros2 )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
   rm -f "$out"
 fi
 
@@ -127,6 +132,12 @@ if [ "$qemu" = 1 ]; then
       add "Python MuJoCo example (module in QEMU, $(( $(date +%s) - t_pyq )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
       rm -f "$out"
     fi
+    log "hapticctrl-ros2 against Cyclone DDS (Python) as a ROS 2 peer, module in QEMU"
+    out=$(mktemp); t_ros2=$(date +%s)
+    bash tests/ros2/run.sh --target qemu $([ "$kernel" = self ] && echo --self-built-kernel) 2>&1 | tee "$out"
+    line=$(grep -E '^ros2-qemu: [0-9]+ passed' "$out" | tail -1)
+    add "ROS 2 node vs Cyclone DDS (module in QEMU, $kernel kernel, $(( $(date +%s) - t_ros2 )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+    rm -f "$out"
     if [ "$e2e" = 1 ]; then
       out=$(mktemp)
       bash tests/e2e/link.sh $kflag | tee "$out"

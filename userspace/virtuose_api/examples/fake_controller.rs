@@ -10,7 +10,8 @@
 //! Prints `PORT <n>` (UDP, 127.0.0.1; `--port 0`, the default, picks a free
 //! one) once listening, answers every period
 //! like the controller, and after `--duration` seconds (or when stdin is
-//! closed) prints what it saw as `key: value` lines.
+//! closed) prints what it saw as `key: value` lines (the last set-point
+//! streamed as `last_vo_pose: x,y,z,qx,qy,qz,qw`).
 
 use std::io::{BufRead, Write};
 use std::time::{Duration, Instant};
@@ -114,6 +115,10 @@ fn main() {
         s.command_type.map(|t| t.to_string()).unwrap_or("-".into())
     );
     println!("max_vo_offset_m: {:.6}", s.max_vo_offset);
+    println!(
+        "last_vo_pose: {}",
+        s.last_vo_pose.map(|v| format!("{v:.6}")).join(",")
+    );
     println!("session_open: {}", s.client.is_some() as u8);
     println!(
         "last_vo_pose: {}",
