@@ -107,8 +107,8 @@ struct Cli {
     /// DDS domain id.
     #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0)]
     domain_id: u16,
-    /// Only this local address for DDS (discovery announcements and
-    /// multicast), e.g. 127.0.0.1.
+    /// Only this local address in DDS discovery announcements and for
+    /// multicast, e.g. 127.0.0.1 (the sockets still bind to all addresses).
     #[arg(long)]
     dds_address: Option<IpAddr>,
     /// Command type set at start.
