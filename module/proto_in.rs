@@ -14,7 +14,8 @@ use crate::{
     hap_core::protocol::{encode, FrameHeader, MAX_FRAME_LEN},
     hap_core::servo::PowerRequest,
     kthread::CurrentKThread,
-    shared::{proto_words, Shared},
+    hap_core::proto_in::ProtoPublication,
+    shared::Shared,
 };
 use kernel::sync::atomic::Relaxed;
 
@@ -44,14 +45,16 @@ fn handle_frame(sh: &Shared, bytes: &[u8]) {
     } else {
         None
     };
-    let mut counters = *proto.counters();
+    let mut publication = ProtoPublication {
+        counters: *proto.counters(),
+        session,
+    };
     // The VPr latch (SERVO's view of VPr and session), under `mtx_proto`.
     sh.publish_vpr(&proto);
     drop(proto);
     {
         let w = sh.proto_pub.write();
-        let mut s = u64::from(session);
-        proto_words(&mut counters, &mut s, |i, v| w.set(i, *v));
+        publication.visit_words(|i, v| w.set(i, *v));
     }
 
     if let Some(cfg) = config {

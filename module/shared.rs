@@ -10,21 +10,21 @@ use crate::{
     hap_core::{
         config::ServoConfig,
         cycle::ServoCycle,
-        effort::{EffortKeyframe, EFFORT_CAPACITY},
+        effort::{EffortKeyframe, EFFORT_CAPACITY, EFFORT_RECORD_BYTES},
         handshake::CycleHandshake,
         io::MotorLine,
-        proto_in::{ProtoCounters, ProtoIn, Reject},
-        protocol::{DecodeError, MAX_FRAME_LEN},
+        proto_in::{ProtoIn, ProtoPublication, PROTO_PUBLICATION_WORDS},
+        protocol::MAX_FRAME_LEN,
         seqlock::SeqWords,
         servo::PowerRequest,
         simulator::LogRecord,
         stats::{HapStats, STATS_WORDS},
-        vp::{VpReceived, VPR_WORDS},
+        vp::{VpReceived, VprLatchRecord, VPR_LATCH_WORDS},
     },
     ring::{storage, AtomicU64, Fifo},
     rtf::{RtfInCounters, RTF_FRAMES},
     rwsem::RwSem,
-    simulator::{EffortScratch, EFFORT_RECORD_BYTES},
+    simulator::EffortScratch,
     time::Ktime,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
@@ -128,40 +128,6 @@ impl ControllerState {
 /// No event recorded yet.
 pub(crate) const NEVER: u64 = u64::MAX;
 
-/// Words of PROTO_IN's published counters: `ProtoCounters` then the session.
-pub(crate) const PROTO_WORDS: usize = 6 + DecodeError::COUNT + Reject::PROTOCOL_COUNT;
-
-/// PROTO_IN's counters and session as published words (and back).
-pub(crate) fn proto_words(
-    c: &mut ProtoCounters,
-    session: &mut u64,
-    mut f: impl FnMut(usize, &mut u64),
-) {
-    let mut i = 0usize;
-    let mut w = |v: &mut u64| {
-        f(i, v);
-        i = i.saturating_add(1);
-    };
-    w(&mut c.accepted);
-    c.decode_rejects.iter_mut().for_each(&mut w);
-    c.protocol_rejects.iter_mut().for_each(&mut w);
-    w(&mut c.vpr_frames);
-    w(&mut c.config_frames);
-    w(&mut c.sessions_opened);
-    w(&mut c.replies);
-    w(session);
-}
-
-/// Words of the VPr latch: the session, then the `VpReceived`'s.
-pub(crate) const VPR_LATCH_WORDS: usize = 1 + VPR_WORDS;
-
-/// The session and a `VpReceived` as latch words (and back): word 0 is the
-/// session, then hap-core's walk of the VPr (host-tested round trip).
-fn vpr_words(session: &mut u64, v: &mut VpReceived, mut f: impl FnMut(usize, &mut u64)) {
-    f(0, session);
-    v.visit_words(|i, w| f(i.saturating_add(1), w));
-}
-
 /// A fixed array of atomic words (small publications, built inline).
 pub(crate) struct Words<const N: usize>([AtomicU64; N]);
 
@@ -211,7 +177,7 @@ pub(crate) struct Shared {
     #[pin]
     pub(crate) proto: Mutex<KBox<ProtoIn>>,
     /// PROTO_IN's counters and session, published after each frame.
-    pub(crate) proto_pub: SeqWords<Words<PROTO_WORDS>>,
+    pub(crate) proto_pub: SeqWords<Words<PROTO_PUBLICATION_WORDS>>,
     /// The VPr latch: the session and the latest VPr, published under
     /// `mtx_proto` whenever they change (`Shared::publish_vpr`); SERVO reads
     /// it without any lock (`Shared::latest_vpr`).
@@ -295,10 +261,12 @@ impl Shared {
         // The latch starts as the protocol does (no session, its initial VPr).
         let vpr_latch = SeqWords::new(Words::new());
         {
-            let mut session = u64::from(proto.session());
-            let mut vpr = *proto.vpr();
+            let mut rec = VprLatchRecord {
+                session: proto.session(),
+                vpr: *proto.vpr(),
+            };
             let w = vpr_latch.write();
-            vpr_words(&mut session, &mut vpr, |i, v| w.set(i, *v));
+            rec.visit_words(|i, v| w.set(i, *v));
         }
         let data = ServoData::new_boxed(period_us)?;
         let mut own_stats = new_stats(period_us)?;
@@ -416,10 +384,12 @@ impl Shared {
     /// the `mtx_proto` guard serialises the latch's writers (PROTO_IN after
     /// each frame, the fail-safe and rmmod after closing the protocol).
     pub(crate) fn publish_vpr(&self, proto: &MutexGuard<'_, KBox<ProtoIn>>) {
-        let mut session = u64::from(proto.session());
-        let mut vpr = *proto.vpr();
+        let mut rec = VprLatchRecord {
+            session: proto.session(),
+            vpr: *proto.vpr(),
+        };
         let w = self.vpr_latch.write();
-        vpr_words(&mut session, &mut vpr, |i, v| w.set(i, *v));
+        rec.visit_words(|i, v| w.set(i, *v));
     }
 
     /// Close the protocol (the fail-safe, rmmod) and publish the closed
@@ -436,28 +406,26 @@ impl Shared {
     pub(crate) fn latest_vpr(&self) -> Option<(u16, VpReceived)> {
         let mut words = [0u64; VPR_LATCH_WORDS];
         self.vpr_latch.read(&mut words, VPR_READ_ATTEMPTS)?;
-        let mut session = 0u64;
-        let mut vpr = VpReceived::default();
-        vpr_words(&mut session, &mut vpr, |i, v| {
+        let mut rec = VprLatchRecord::default();
+        rec.visit_words(|i, v| {
             if let Some(w) = words.get(i) {
                 *v = *w;
             }
         });
-        Some((u16::try_from(session).unwrap_or(0), vpr))
+        Some((rec.session, rec.vpr))
     }
 
     /// PROTO_IN's published counters and session.
-    pub(crate) fn proto_counters(&self) -> (ProtoCounters, u16) {
-        let mut words = [0u64; PROTO_WORDS];
+    pub(crate) fn proto_publication(&self) -> ProtoPublication {
+        let mut words = [0u64; PROTO_PUBLICATION_WORDS];
         let _ = self.proto_pub.read(&mut words, STATS_READ_ATTEMPTS);
-        let mut c = ProtoCounters::default();
-        let mut session = 0u64;
-        proto_words(&mut c, &mut session, |i, v| {
+        let mut p = ProtoPublication::default();
+        p.visit_words(|i, v| {
             if let Some(w) = words.get(i) {
                 *v = *w;
             }
         });
-        (c, u16::try_from(session).unwrap_or(0))
+        p
     }
 }
 

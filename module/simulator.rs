@@ -25,9 +25,8 @@ use crate::{
     hap_core::{
         effort::{
             parse_effort_command, parse_effort_sequence, EffortCommand, EffortCommandError,
-            EffortKeyframe, EffortSample, EFFORT_CAPACITY,
+            EffortHandoff, EffortKeyframe, EFFORT_CAPACITY, EFFORT_RECORD_BYTES,
         },
-        fixed::{Fx, Vec3, Wrench},
         simulator::{LogMode, LogRecord, LogTiming},
         vp::alarm,
     },
@@ -47,72 +46,6 @@ use kernel::{
 /// Largest effort-sequence write.
 const EFFORT_MAX_BYTES: usize = 64 * 1024;
 
-/// Bytes of one keyframe in a handoff record.
-const KEY_BYTES: usize = 32;
-/// An effort handoff record: kind (1 byte), count or live flags (8 bytes),
-/// then the keyframes or the live wrench.
-pub(crate) const EFFORT_RECORD_BYTES: usize = 16 + EFFORT_CAPACITY * KEY_BYTES;
-
-const KIND_CLEAR: u8 = 1;
-const KIND_LIVE_OFF: u8 = 2;
-const KIND_LIVE: u8 = 3;
-const KIND_SEQUENCE: u8 = 4;
-
-fn put(out: &mut [u8], at: usize, bytes: &[u8]) {
-    if let Some(d) = at
-        .checked_add(bytes.len())
-        .and_then(|end| out.get_mut(at..end))
-    {
-        d.copy_from_slice(bytes);
-    }
-}
-
-fn get<const N: usize>(rec: &[u8], at: usize) -> [u8; N] {
-    let mut b = [0u8; N];
-    if let Some(s) = at.checked_add(N).and_then(|end| rec.get(at..end)) {
-        b.copy_from_slice(s);
-    }
-    b
-}
-
-/// Encode keyframes `keys` as a sequence record into `out`; its length.
-fn encode_sequence(keys: &[EffortKeyframe], out: &mut [u8]) -> usize {
-    put(out, 0, &[KIND_SEQUENCE]);
-    put(
-        out,
-        8,
-        &u64::try_from(keys.len()).unwrap_or(0).to_le_bytes(),
-    );
-    let mut at = 16usize;
-    for k in keys {
-        put(out, at, &k.t_ms.to_le_bytes());
-        let mut v_at = at.saturating_add(4);
-        for v in Iterator::chain(k.force_mn.iter(), k.torque_mnm.iter()) {
-            put(out, v_at, &v.to_le_bytes());
-            v_at = v_at.saturating_add(4);
-        }
-        put(out, at.saturating_add(28), &[k.flags]);
-        at = at.saturating_add(KEY_BYTES);
-    }
-    at
-}
-
-fn encode_live(s: &EffortSample, out: &mut [u8]) -> usize {
-    put(out, 0, &[KIND_LIVE, u8::from(s.dead_man), s.buttons]);
-    let w = &s.wrench;
-    let raw = [
-        w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z,
-    ];
-    for (j, v) in raw.iter().enumerate() {
-        put(
-            out,
-            j.saturating_mul(8).saturating_add(16),
-            &v.0.to_le_bytes(),
-        );
-    }
-    16 + 6 * 8
-}
-
 /// SERVO, at the top of its cycle (with `mtx_data`, which only SERVO
 /// takes): apply the effort commands handed over since its last cycle.
 /// Never waits; a few KiB copied at most per command.
@@ -121,60 +54,18 @@ pub(crate) fn take_effort(sh: &Shared, d: &mut ServoData) {
     while let Some(n) = sh.effort.pop(&mut d.handoff) {
         taken = true;
         let rec = d.handoff.get(..n).unwrap_or(&[]);
-        match rec.first().copied() {
-            Some(KIND_CLEAR) => {
+        match EffortHandoff::decode(rec, &mut d.keys) {
+            Some(EffortHandoff::Clear) => {
                 let _ = d.cycle.servo.load_effort(&[]);
                 sh.effort_loaded_cycle.store(d.cycle.servo.cycle(), Release);
             }
-            Some(KIND_LIVE_OFF) => d.cycle.servo.set_live_effort(None),
-            Some(KIND_LIVE) => {
-                let fx = |j: usize| {
-                    Fx(i64::from_le_bytes(get(
-                        rec,
-                        j.saturating_mul(8).saturating_add(16),
-                    )))
-                };
-                let sample = EffortSample {
-                    wrench: Wrench {
-                        force: Vec3 {
-                            x: fx(0),
-                            y: fx(1),
-                            z: fx(2),
-                        },
-                        torque: Vec3 {
-                            x: fx(3),
-                            y: fx(4),
-                            z: fx(5),
-                        },
-                    },
-                    dead_man: rec.get(1).copied().unwrap_or(0) != 0,
-                    buttons: rec.get(2).copied().unwrap_or(0),
-                };
-                d.cycle.servo.set_live_effort(Some(sample));
-            }
-            Some(KIND_SEQUENCE) => {
-                let count = usize::try_from(u64::from_le_bytes(get(rec, 8))).unwrap_or(0);
-                let count = count.min(EFFORT_CAPACITY);
-                for (i, k) in d.keys.iter_mut().enumerate().take(count) {
-                    let at = 16usize.saturating_add(i.saturating_mul(KEY_BYTES));
-                    let i32_at = |j: usize| {
-                        i32::from_le_bytes(get(
-                            rec,
-                            at.saturating_add(4).saturating_add(j.saturating_mul(4)),
-                        ))
-                    };
-                    *k = EffortKeyframe {
-                        t_ms: u32::from_le_bytes(get(rec, at)),
-                        force_mn: [i32_at(0), i32_at(1), i32_at(2)],
-                        torque_mnm: [i32_at(3), i32_at(4), i32_at(5)],
-                        flags: get::<1>(rec, at.saturating_add(28))[0],
-                    };
-                }
-                let keys = d.keys.get(..count).unwrap_or(&[]);
+            Some(EffortHandoff::LiveOff) => d.cycle.servo.set_live_effort(None),
+            Some(EffortHandoff::Live(sample)) => d.cycle.servo.set_live_effort(Some(sample)),
+            Some(EffortHandoff::Sequence(keys)) => {
                 d.cycle.servo.load_effort(keys);
                 sh.effort_loaded_cycle.store(d.cycle.servo.cycle(), Release);
             }
-            _ => {}
+            None => {}
         }
         sh.effort_applied.fetch_add(1, Ordering::AcqRel);
     }
@@ -246,18 +137,12 @@ impl HapDevice for Effort {
         let mut guard = sh.effort_writer.lock();
         let s = &mut **guard;
         let rec_len = match cmd {
-            EffortCommand::Clear => {
-                put(&mut s.record, 0, &[KIND_CLEAR]);
-                1
-            }
-            EffortCommand::LiveOff => {
-                put(&mut s.record, 0, &[KIND_LIVE_OFF]);
-                1
-            }
-            EffortCommand::Live(sample) => encode_live(&sample, &mut s.record),
+            EffortCommand::Clear => EffortHandoff::Clear.encode(&mut s.record),
+            EffortCommand::LiveOff => EffortHandoff::LiveOff.encode(&mut s.record),
+            EffortCommand::Live(sample) => EffortHandoff::Live(sample).encode(&mut s.record),
             EffortCommand::Sequence { text, .. } => {
                 let keys = parse_effort_sequence(text, &mut s.keys).map_err(|_| EINVAL)?;
-                encode_sequence(s.keys.get(..keys).unwrap_or(&[]), &mut s.record)
+                EffortHandoff::Sequence(s.keys.get(..keys).unwrap_or(&[])).encode(&mut s.record)
             }
         };
         let ticket = sh.effort.counts().1.saturating_add(1);

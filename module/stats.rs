@@ -19,7 +19,6 @@ use crate::{
     device::{HapDevice, OpenFile},
     hap_core::{
         clock::MISS_LIMIT,
-        proto_in::Reject,
         stats::{
             render_histograms, render_summary, HapStats, HistogramView, SliceWriter,
             HIST_RENDER_MAX, STATS_WORDS,
@@ -95,7 +94,8 @@ fn copy_stats(sh: &Shared) -> Result<KBox<HapStats>> {
 }
 
 fn render(sh: &Shared, st: &mut HapStats, out: &mut [u8]) -> usize {
-    let (proto_counters, session) = sh.proto_counters();
+    let publication = sh.proto_publication();
+    let proto_counters = &publication.counters;
     let (rtf_out_len, _, _) = sh.rtf_out.counts();
     let (replies_len, _, _) = sh.rtf_replies.counts();
     let (rtf_in_len, _, _) = sh.rtf_in.counts();
@@ -142,23 +142,7 @@ fn render(sh: &Shared, st: &mut HapStats, out: &mut [u8]) -> usize {
             u8::from(gate == crate::hap_core::io::Gate::FailSafe)
         )?;
         writeln!(w, "motor_gate: {}", gate.name())?;
-        writeln!(w, "session: {session}")?;
-        writeln!(w, "sessions_opened: {}", proto_counters.sessions_opened)?;
-        writeln!(w, "vpr_frames: {}", proto_counters.vpr_frames)?;
-        writeln!(w, "config_frames: {}", proto_counters.config_frames)?;
-        writeln!(w, "replies: {}", proto_counters.replies)?;
-        writeln!(
-            w,
-            "retransmits_reacked: {}",
-            proto_counters.retransmits_reacked
-        )?;
-        writeln!(w, "superseded: {}", proto_counters.superseded)?;
-        for (name, v) in Reject::PROTOCOL_NAMES
-            .iter()
-            .zip(proto_counters.protocol_rejects.iter())
-        {
-            writeln!(w, "rejected.{name}: {v}")?;
-        }
+        publication.render(&mut w)?;
         writeln!(
             w,
             "rtf_in.bad_length: {}",

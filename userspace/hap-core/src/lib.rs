@@ -31,4 +31,5 @@ pub mod spsc;
 pub mod state_model;
 pub mod stats;
 pub mod vp;
+pub mod words;
 pub mod xdr;
