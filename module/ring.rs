@@ -20,7 +20,10 @@
 //! `struct completion` (a raw spinlock held for a bounded wake-up, also on
 //! PREEMPT_RT), never a lock a reader can hold while preempted.
 
-use crate::hap_core::spsc::{self, PushError, Spsc};
+use crate::{
+    completion::Timeout,
+    hap_core::spsc::{self, PushError, Spsc},
+};
 use core::sync::atomic::{fence, AtomicBool, AtomicU32, Ordering};
 use kernel::{bindings, new_mutex, prelude::*, sync::Mutex, types::Opaque};
 
@@ -59,11 +62,11 @@ impl Doorbell {
         unsafe { bindings::complete_all(self.inner.get()) };
     }
 
-    /// Sleep until rung, a signal (`ERESTARTSYS`) or `jiffies` elapsed.
-    pub(crate) fn wait_interruptible(&self, jiffies: c_ulong) -> Result {
+    /// Sleep until rung, a signal (`ERESTARTSYS`) or `timeout` elapsed.
+    pub(crate) fn wait_interruptible(&self, timeout: Timeout) -> Result {
         // SAFETY: `inner` is an initialised completion; readers may sleep.
         let r = unsafe {
-            bindings::wait_for_completion_interruptible_timeout(self.inner.get(), jiffies)
+            bindings::wait_for_completion_interruptible_timeout(self.inner.get(), timeout.jiffies())
         };
         if r < 0 {
             Err(ERESTARTSYS)
@@ -72,6 +75,9 @@ impl Doorbell {
         }
     }
 }
+
+/// A sleeping reader re-checks the ring at least this often.
+const READER_WAIT: Timeout = Timeout::from_millis(100);
 
 /// Allocate `words` zeroed atomic words (vmalloc-backed when large), in one
 /// allocation.
@@ -82,6 +88,22 @@ pub(crate) fn storage(words: usize) -> Result<KVVec<AtomicU64>> {
             .map_err(|_| ENOMEM)?;
     }
     Ok(v)
+}
+
+/// A fixed array of atomic words (small publications, built inline).
+pub(crate) struct Words<const N: usize>([AtomicU64; N]);
+
+impl<const N: usize> Words<N> {
+    pub(crate) const fn new() -> Self {
+        Words([const { AtomicU64::new(0) }; N])
+    }
+}
+
+impl<const N: usize> core::ops::Deref for Words<N> {
+    type Target = [AtomicU64];
+    fn deref(&self) -> &[AtomicU64] {
+        &self.0
+    }
 }
 
 /// A ring of records of at most `REC` bytes with its doorbell and end of file.
@@ -231,8 +253,8 @@ impl<const REC: usize> Fifo<REC> {
             fence(Ordering::SeqCst);
             let empty = self.ring.is_empty() && first.is_none_or(|f| f.ring.is_empty());
             let r = if empty && !self.closed.load(Ordering::Acquire) {
-                // The timeout only bounds a stale wake-up count's effect.
-                self.readable.wait_interruptible(100)
+                // The time-out only bounds a stale wake-up count's effect.
+                self.readable.wait_interruptible(READER_WAIT)
             } else {
                 Ok(())
             };
@@ -251,6 +273,11 @@ impl<const REC: usize> Fifo<REC> {
         }
         self.closed.store(true, Ordering::Release);
         self.readable.ring_all();
+    }
+
+    /// Closed (no more pushes).
+    pub(crate) fn is_closed(&self) -> bool {
+        self.closed.load(Ordering::Acquire)
     }
 
     /// (records queued now, records pushed, records refused: full ring or,

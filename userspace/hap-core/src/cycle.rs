@@ -1,6 +1,6 @@
 //! One SERVO cycle (spec §3.5) as a single function: the synchronizer's
-//! `receive_vp` (copy VPr when the protocol try-lock succeeded, else the best
-//! estimate), the servo step with the link watchdog's gain bounding the
+//! `receive_vp` (copy VPr when the read of the VPr latch succeeded, else the
+//! best estimate), the servo step with the link watchdog's gain bounding the
 //! coupling force at the motors (and so the answer, its reaction), and the
 //! answer frames of `send_vp`.
 //!
@@ -52,20 +52,20 @@ impl ServoCycle {
     }
 
     /// Run one cycle. `line` is hap_io's motor line (outside every lock, see
-    /// `io`). `vpr_shared` is the VPr shared memory when the protocol
-    /// try-lock succeeded, `None` when it was busy.
+    /// `io`). `vpr_latest` is the VPr read from the VPr latch, `None` when
+    /// every read attempt overlapped PROTO_IN's publication.
     pub fn run(
         &mut self,
         line: &MotorLine,
         inputs: &ServoInputs,
         config: &ServoConfig,
-        vpr_shared: Option<&VpReceived>,
+        vpr_latest: Option<&VpReceived>,
         mode: ServoMode,
     ) -> CycleResult {
         let now_cycle = self.servo.cycle();
         let est = self
             .synchro
-            .receive_vp(vpr_shared, now_cycle, self.period_us);
+            .receive_vp(vpr_latest, now_cycle, self.period_us);
         // A VPr the watchdog has faded to nothing no longer couples the arm.
         let mut vpr = est.vpr;
         if est.link_gain == Fx::ZERO {

@@ -4,8 +4,9 @@
 //! [`ProtoIn::handle`] with the frame's bytes, and carries out the returned
 //! [`Outcome`]: publish the new configuration (under the configuration
 //! rwsem), forward a power request, queue the reply on rtf_out, count the
-//! reject. The VPr shared memory lives here, so SERVO's try-lock of the same
-//! lock reads it with [`ProtoIn::vpr`].
+//! reject. The VPr shared memory lives here ([`ProtoIn::vpr`]); the kernel
+//! publishes it with the session into the VPr latch after each frame, and
+//! SERVO reads the latch, never this lock.
 //!
 //! Session rules:
 //! - `OpenSession` opens a new session (a new client, or the same one after a

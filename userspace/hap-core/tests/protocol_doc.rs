@@ -246,7 +246,7 @@ fn stats_counters_match_the_documentation() {
     // in the guest by tests/qemu/03-phase2-coupling.sh).
     assert_eq!(
         others,
-        ["answers_sent", "answers_skipped_lock_busy"],
+        ["answers_sent", "answers_skipped_latch_busy"],
         "documented keys rendered nowhere in hap-core"
     );
 }
