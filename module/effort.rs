@@ -22,7 +22,7 @@ use crate::{
         parse_effort_command, parse_effort_sequence, EffortCommand, EffortCommandError,
         EffortHandoff, EffortKeyframe, EFFORT_CAPACITY, EFFORT_RECORD_BYTES,
     },
-    ring::{Fifo, Refused},
+    ring::{Consumer, Fifo, Refused},
     servo_data::{ServoData, NEVER},
     time::Ktime,
 };
@@ -88,12 +88,34 @@ const EFFORT_TAKE_NS: i64 = 100_000_000;
 /// A writer re-checks whether SERVO took its record at least this often.
 const EFFORT_POLL: Timeout = Timeout::from_millis(1);
 
-/// SERVO, at the top of its cycle (with `mtx_data`, which only SERVO
-/// takes): apply the effort commands handed over since its last cycle.
-/// Never waits; a few KiB copied at most per command.
-pub(crate) fn take_effort(ch: &EffortChannel, d: &mut ServoData) {
+/// SERVO's side of the hand-off: the ring's consumer token.
+pub(crate) struct EffortTaker<'a> {
+    ch: &'a EffortChannel,
+    ring: Consumer<'a, EFFORT_RECORD_BYTES>,
+}
+
+impl EffortChannel {
+    /// SERVO's side, claimed once by SERVO (`None` if it is held).
+    pub(crate) fn claim_taker(&self) -> Option<EffortTaker<'_>> {
+        Some(EffortTaker {
+            ch: self,
+            ring: self.ring.claim_consumer()?,
+        })
+    }
+}
+
+impl EffortTaker<'_> {
+    /// SERVO, at the top of its cycle (with `mtx_data`, which only SERVO
+    /// takes): apply the effort commands handed over since its last cycle.
+    /// Never waits; a few KiB copied at most per command.
+    pub(crate) fn take(&self, d: &mut ServoData) {
+        take_effort(self.ch, &self.ring, d);
+    }
+}
+
+fn take_effort(ch: &EffortChannel, ring: &Consumer<'_, EFFORT_RECORD_BYTES>, d: &mut ServoData) {
     let mut taken = false;
-    while let Some(n) = ch.ring.pop(&mut d.handoff) {
+    while let Some(n) = ring.pop(&mut d.handoff) {
         taken = true;
         let rec = d.handoff.get(..n).unwrap_or(&[]);
         match EffortHandoff::decode(rec, &mut d.keys) {
@@ -189,7 +211,10 @@ impl HapDevice for Effort {
             }
         };
         let ticket = ch.ring.counts().1.saturating_add(1);
-        match ch.ring.push(s.record.get(..rec_len).unwrap_or(&[])) {
+        match ch
+            .ring
+            .push_serialised(s.record.get(..rec_len).unwrap_or(&[]))
+        {
             Ok(()) => {}
             Err(Refused::Full) => return Err(EBUSY),
             Err(Refused::Closed) => return Err(EPIPE),

@@ -221,7 +221,7 @@ impl kernel::Module for HapticCtrl {
             devices: None,
         };
         // On error `this` drops: tasks stopped, devices removed, channels freed.
-        servo::calibrate(&ctrl);
+        servo::calibrate(&ctrl)?;
         this.devices = Some(Devices::register(&ctrl)?);
         this.tasks = Some(Tasks::start(&ctrl)?);
         pr_info!(

@@ -16,29 +16,38 @@ use crate::{
     hap_core::protocol::{encode, FrameHeader, MAX_FRAME_LEN},
     hap_core::servo::PowerRequest,
     kthread::CurrentKThread,
+    ring::Producer,
 };
-use kernel::sync::atomic::Relaxed;
+use kernel::{prelude::*, sync::atomic::Relaxed};
 
 /// PROTO_IN wakes at least this often to check for a stop.
 const FRAME_WAIT: Timeout = Timeout::from_millis(100);
 
 /// PROTO_IN's thread body.
 pub(crate) fn proto_in_main(kt: &CurrentKThread, sh: &Controller) {
+    // PROTO_IN's sides of the FIFOs, held for its lifetime.
+    let (Some(frames), Some(replies)) = (
+        sh.rtf.rtf_in.claim_consumer(),
+        sh.rtf.rtf_replies.claim_producer(),
+    ) else {
+        pr_err!("PROTO_IN: its FIFO sides are already held\n");
+        return;
+    };
     let mut frame = [0u8; MAX_FRAME_LEN];
     while !kt.should_stop() && !sh.life.is_stopping() {
         if sh.rtf.rtf_in_ready.wait_timeout(FRAME_WAIT) == Wait::TimedOut {
             continue;
         }
-        while let Some(len) = sh.rtf.rtf_in.pop(&mut frame) {
+        while let Some(len) = frames.pop(&mut frame) {
             if sh.life.is_stopping() {
                 return;
             }
-            handle_frame(sh, frame.get(..len).unwrap_or(&[]));
+            handle_frame(sh, &replies, frame.get(..len).unwrap_or(&[]));
         }
     }
 }
 
-fn handle_frame(sh: &Controller, bytes: &[u8]) {
+fn handle_frame(sh: &Controller, replies: &Producer<'_, MAX_FRAME_LEN>, bytes: &[u8]) {
     let now_cycle = sh.clock.handshake.tick();
     let mut proto = sh.proto.lock();
     let outcome = proto.handle(bytes, now_cycle, sh.time.period_us);
@@ -73,7 +82,7 @@ fn handle_frame(sh: &Controller, bytes: &[u8]) {
         };
         let mut out = [0u8; MAX_FRAME_LEN];
         let n = encode(&header, &reply, &mut out);
-        if rtf.rtf_replies.push(out.get(..n).unwrap_or(&[])).is_ok() {
+        if replies.push(out.get(..n).unwrap_or(&[])).is_ok() {
             rtf.rtf_out.wake_readers();
         } else {
             rtf.answers_dropped.add(1, Relaxed);

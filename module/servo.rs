@@ -26,11 +26,11 @@
 use crate::{
     completion::{Timeout, Wait},
     controller::Controller,
-    effort::take_effort,
     hap_core::{clock::Mode, servo::ServoMode, simulator::LogTiming},
     kthread::CurrentKThread,
     servo_cycle,
 };
+use kernel::prelude::*;
 
 /// SERVO wakes at least this often at the barrier to check for a stop.
 const BARRIER_WAIT: Timeout = Timeout::from_millis(100);
@@ -39,6 +39,13 @@ const BARRIER_WAIT: Timeout = Timeout::from_millis(100);
 pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Controller) {
     let clock = &sh.clock;
     let hs = &clock.handshake;
+    // SERVO's sides of rtf_out and of the effort hand-off, held for its
+    // lifetime.
+    let (Some(answers), Some(effort)) = (sh.rtf.rtf_out.claim_producer(), sh.effort.claim_taker())
+    else {
+        pr_err!("SERVO: its FIFO sides are already held\n");
+        return;
+    };
     // The protocol session, for the log (kept when the latch is being written).
     let mut session = 0u16;
     while !kt.should_stop() && !sh.life.is_stopping() {
@@ -70,8 +77,8 @@ pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Controller) {
             // The hung SERVO is released only by rmmod: it never finishes.
             break;
         }
-        take_effort(&sh.effort, &mut data);
-        servo_cycle::run(sh, &mut data, mode);
+        effort.take(&mut data);
+        servo_cycle::run(sh, &answers, &mut data, mode);
         let mut rec = *data.cycle.servo.log_record();
         drop(data);
 
@@ -100,12 +107,15 @@ pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Controller) {
 /// the debug kernel: milliseconds) are not paid inside the first real-time
 /// cycle. Its inputs are those of every cycle before a client or a user acts,
 /// so the host replay starts from the same state.
-pub(crate) fn calibrate(sh: &Controller) {
+pub(crate) fn calibrate(sh: &Controller) -> Result {
+    // SERVO's side of rtf_out, given back before SERVO starts.
+    let answers = sh.rtf.rtf_out.claim_producer().ok_or(EBUSY)?;
     let mut data = sh.servo.data.lock();
-    servo_cycle::run(sh, &mut data, ServoMode::Main);
+    servo_cycle::run(sh, &answers, &mut data, ServoMode::Main);
     let rec = *data.cycle.servo.log_record();
     drop(data);
     sh.log.push(&rec);
+    Ok(())
 }
 
 fn ns_u32(ns: i64) -> u32 {

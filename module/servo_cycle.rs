@@ -24,12 +24,19 @@ use crate::{
         protocol::MAX_FRAME_LEN,
         servo::{PowerRequest, ServoInputs, ServoMode},
     },
+    ring::Producer,
     servo_data::ServoData,
 };
 use kernel::sync::atomic::Relaxed;
 
-/// Run one servo cycle in `mode` on SERVO's `data`.
-pub(crate) fn run(sh: &Controller, data: &mut ServoData, mode: ServoMode) {
+/// Run one servo cycle in `mode` on SERVO's `data`; the answers go out
+/// through `answers`, SERVO's side of rtf_out.
+pub(crate) fn run(
+    sh: &Controller,
+    answers: &Producer<'_, MAX_FRAME_LEN>,
+    data: &mut ServoData,
+    mode: ServoMode,
+) {
     // Configuration: a fresh copy unless PROTO_IN is writing it.
     match sh.servo.config.try_read() {
         Some(cfg) => data.config = *cfg,
@@ -82,7 +89,7 @@ pub(crate) fn run(sh: &Controller, data: &mut ServoData, mode: ServoMode) {
         &mut lens,
     );
     for (frame, len) in frames.iter().zip(lens.iter()).take(n) {
-        if rtf.rtf_out.push(frame.get(..*len).unwrap_or(&[])).is_ok() {
+        if answers.push(frame.get(..*len).unwrap_or(&[])).is_ok() {
             rtf.answers_sent.add(1, Relaxed);
         } else {
             rtf.answers_dropped.add(1, Relaxed);
