@@ -24,8 +24,8 @@ use crate::{
     hap_core::{
         clock::{FailSafeAction, FailSafeCause, Supervisor, Verdict, FAIL_SAFE_SEQUENCE},
         io::Gate,
+        position_log::{LogMode, LogRecord, LogTiming},
         servo::log_flags,
-        simulator::{LogMode, LogRecord, LogTiming},
         stats::WordSet,
         vp::alarm,
     },

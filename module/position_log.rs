@@ -10,7 +10,7 @@
 
 use crate::{
     device::{HapDevice, OpenFile},
-    hap_core::simulator::LogRecord,
+    hap_core::position_log::LogRecord,
     ring::Fifo,
 };
 use kernel::{iov::IovIterDest, prelude::*, sync::Arc};

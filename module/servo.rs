@@ -26,7 +26,7 @@
 use crate::{
     completion::{Timeout, Wait},
     controller::Controller,
-    hap_core::{clock::Mode, servo::ServoMode, simulator::LogTiming},
+    hap_core::{mode::ServoMode, position_log::LogTiming},
     kthread::CurrentKThread,
     servo_cycle,
 };
@@ -60,13 +60,10 @@ pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Controller) {
         }
         // The spec's servo_working = TRUE.
         let start = hs.servo_begin();
-        let mode = match start.mode {
-            Mode::Normal => ServoMode::Main,
-            Mode::Degraded => ServoMode::Degraded,
-            Mode::FailSafe => {
-                hs.servo_leave();
-                break;
-            }
+        let Some(mode) = ServoMode::of(start.mode) else {
+            // Fail-safe: SERVO runs nothing and leaves.
+            hs.servo_leave();
+            break;
         };
         let start_ns = sh.time.now_ns();
         let expiry_ns = clock.expiry_ns();

@@ -33,7 +33,7 @@ use std::path::{Path, PathBuf};
 
 use hap_core::arm::TAU_MAX;
 use hap_core::control::{BRAKE_START, MAX_FORCE};
-use hap_core::simulator::{LogMode, LogRecord};
+use hap_core::position_log::{LogMode, LogRecord};
 use hap_core::stats::{histogram_entries, key_values, parse_summary, StatsSummary, HIST_SERIES};
 use hap_core::vp::status;
 use plotters::coord::Shift;
@@ -1529,7 +1529,7 @@ fn report_html(
 mod tests {
     use super::*;
     use hap_core::fixed::{Fx, Vec3};
-    use hap_core::simulator::LogTiming;
+    use hap_core::position_log::LogTiming;
     use hap_core::vp::alarm;
 
     const PERIOD_US: u32 = 1000;

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use hap_core::simulator::LogRecord;
+use hap_core::position_log::LogRecord;
 
 fn hapctl(dev: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_hapctl"))
