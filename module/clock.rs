@@ -19,6 +19,7 @@
 //!   cycle.
 
 use crate::{
+    arm::Arm,
     completion::{Timeout, Wait},
     controller::Controller,
     hap_core::{
@@ -202,7 +203,13 @@ pub(crate) fn fail_safe(sh: &Controller, cause: FailSafeCause) {
         sh.clock.ticks_not_posted()
     );
     for (i, action) in FAIL_SAFE_SEQUENCE.iter().enumerate() {
-        log_fail_safe_step(sh, u8::try_from(i.saturating_add(1)).unwrap_or(u8::MAX));
+        for arm in sh.arms() {
+            log_fail_safe_step(
+                sh,
+                arm,
+                u8::try_from(i.saturating_add(1)).unwrap_or(u8::MAX),
+            );
+        }
         match action {
             FailSafeAction::ReleaseResources => {
                 // A SERVO still inside its cycle (an overrun) gets a few
@@ -221,33 +228,38 @@ pub(crate) fn fail_safe(sh: &Controller, cause: FailSafeCause) {
                         RELEASE_WAIT_PERIODS
                     );
                 }
-                // The position log stays readable until drained; the rest
+                // The position logs stay readable until drained; the rest
                 // is released by rmmod.
-                sh.log.close(false);
+                for arm in sh.arms() {
+                    arm.log.close(false);
+                }
             }
             other => sh.act(*other),
         }
-        let line = &sh.io.motor_line;
-        let applied = line.applied();
-        pr_warn!(
-            "fail-safe ({}): step {}/{}: {} (servo {}, gate {}, supply {}, applied torque {})\n",
-            cause.name(),
-            i.saturating_add(1),
-            FAIL_SAFE_SEQUENCE.len(),
-            action.name(),
-            if hs.servo_working() {
-                "in cycle"
-            } else {
-                "waiting"
-            },
-            line.gate().name(),
-            u8::from(line.supply_on()),
-            if applied.iter().all(|t| t.0 == 0) {
-                "0"
-            } else {
-                "non-zero"
-            }
-        );
+        for arm in sh.arms() {
+            let line = &arm.io.motor_line;
+            let applied = line.applied();
+            pr_warn!(
+                "fail-safe ({}): step {}/{}: {} ({}servo {}, gate {}, supply {}, applied torque {})\n",
+                cause.name(),
+                i.saturating_add(1),
+                FAIL_SAFE_SEQUENCE.len(),
+                action.name(),
+                arm_label(sh, arm),
+                if hs.servo_working() {
+                    "in cycle"
+                } else {
+                    "waiting"
+                },
+                line.gate().name(),
+                u8::from(line.supply_on()),
+                if applied.iter().all(|t| t.0 == 0) {
+                    "0"
+                } else {
+                    "non-zero"
+                }
+            );
+        }
     }
     pr_warn!(
         "fail-safe ({}): done, tasks stopped; rmmod to unload\n",
@@ -255,13 +267,23 @@ pub(crate) fn fail_safe(sh: &Controller, cause: FailSafeCause) {
     );
 }
 
+/// `arm N, ` in a dmesg line of a controller of several arms (one arm's
+/// lines read as they always have).
+fn arm_label(sh: &Controller, arm: &Arm) -> &'static str {
+    match (sh.arm_count(), arm.index) {
+        (1, _) => "",
+        (_, 0) => "arm 0, ",
+        _ => "arm 1, ",
+    }
+}
+
 /// Log fail-safe step `step` (1-based, `FAIL_SAFE_SEQUENCE` order) as it
 /// starts: the servo's last record with mode `FailSafe`, the arm status
 /// now, and the tick. If SERVO holds `mtx_data` (a hung or overrunning
 /// cycle), its state is unknown: an empty record flagged `POSE_UNKNOWN`,
 /// which the analysis does not read as a pose.
-fn log_fail_safe_step(sh: &Controller, step: u8) {
-    let mut rec = match sh.servo.data.try_lock() {
+fn log_fail_safe_step(sh: &Controller, arm: &Arm, step: u8) {
+    let mut rec = match arm.servo.data.try_lock() {
         Some(d) => *d.cycle.servo.log_record(),
         None => LogRecord {
             flags: log_flags::POSE_UNKNOWN,
@@ -271,12 +293,12 @@ fn log_fail_safe_step(sh: &Controller, step: u8) {
     rec.mode = LogMode::FailSafe;
     rec.fail_safe_step = step;
     // What the motors apply now, read from the line (not SERVO's last record).
-    let line = &sh.io.motor_line;
+    let line = &arm.io.motor_line;
     rec.motor_torque = line.applied();
     if line.gate() == Gate::FailSafe {
         rec.flags |= log_flags::LINE_CUT;
     }
-    rec.status = sh.io.arm_status();
+    rec.status = arm.io.arm_status();
     rec.alarms |= alarm::FAIL_SAFE;
     rec.timing = LogTiming {
         tick: sh.clock.handshake.tick(),
@@ -287,5 +309,5 @@ fn log_fail_safe_step(sh: &Controller, step: u8) {
     };
     // SERVO may be mid-push (CLOCK preempted it): the record is refused and
     // counted rather than waited for, since the next step cuts the motors.
-    sh.log.push(&rec);
+    arm.log.push(&rec);
 }

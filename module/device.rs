@@ -20,8 +20,9 @@ use kernel::{
 
 /// What a device does; the default `read`/`write` refuse (`EINVAL`).
 pub(crate) trait HapDevice: Sized + Send + Sync + 'static {
-    /// `/dev/<NAME>`.
-    const NAME: &'static CStr;
+    /// `/dev/<NAMES[i]>` for arm `i` (one name: a device of the whole
+    /// controller).
+    const NAMES: &'static [&'static CStr];
 
     /// The component the device serves (all it can reach).
     type Part: Send + Sync + 'static;
@@ -62,18 +63,19 @@ pub(crate) struct Registration<D: HapDevice> {
 }
 
 impl<D: HapDevice> Registration<D> {
-    /// Register `/dev/<D::NAME>`, serving `part`. Dropping the registration
-    /// removes the device first (`misc` is the first field), then its
-    /// reference to `part`; open files hold their own.
-    pub(crate) fn register(part: Arc<D::Part>) -> Result<Pin<KBox<Self>>> {
+    /// Register `/dev/<D::NAMES[index]>`, serving `part`. Dropping the
+    /// registration removes the device first (`misc` is the first field),
+    /// then its reference to `part`; open files hold their own.
+    pub(crate) fn register(index: usize, part: Arc<D::Part>) -> Result<Pin<KBox<Self>>> {
+        let name = *D::NAMES.get(index).ok_or(EINVAL)?;
         KBox::try_pin_init(
             try_pin_init!(Self {
-                misc <- MiscDeviceRegistration::register(MiscDeviceOptions { name: D::NAME }),
+                misc <- MiscDeviceRegistration::register(MiscDeviceOptions { name }),
                 part,
             }? Error),
             GFP_KERNEL,
         )
-        .inspect_err(|e| pr_err!("cannot register /dev/{}: {:?}\n", D::NAME, e))
+        .inspect_err(|e| pr_err!("cannot register /dev/{}: {:?}\n", name, e))
     }
 }
 

@@ -164,7 +164,7 @@ impl EffortScratch {
 }
 
 impl HapDevice for Effort {
-    const NAME: &'static CStr = c"hap_effort";
+    const NAMES: &'static [&'static CStr] = &[c"hap_effort", c"hap1_effort"];
 
     type Part = EffortChannel;
 

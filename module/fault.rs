@@ -89,7 +89,7 @@ fn parse_overrun(b: &[u8]) -> Option<u32> {
 }
 
 impl HapDevice for FaultDevice {
-    const NAME: &'static CStr = c"hap_fault";
+    const NAMES: &'static [&'static CStr] = &[c"hap_fault"];
 
     type Part = FaultInjection;
 

@@ -45,6 +45,7 @@ macro_rules! assert_not_send {
     };
 }
 
+mod arm;
 mod clock;
 mod completion;
 mod controller;
@@ -70,6 +71,7 @@ mod stats_publication;
 mod time;
 mod uaccess;
 
+use arm::{Arm, MAX_ARMS};
 use clock::Timers;
 use controller::Controller;
 use device::Registration;
@@ -80,8 +82,9 @@ use io::Power;
 use kthread::{KThread, SchedClass};
 use lifecycle::Stop;
 use position_log::SimLog;
+use proto_in::ProtoInTask;
 use rtf::{RtfIn, RtfOut};
-use stats::{HistDevice, StatsDevice};
+use stats::{HistDevice, StatsDevice, StatsView};
 
 module! {
     type: HapticCtrl,
@@ -93,6 +96,10 @@ module! {
         period_us: u32 {
             default: 1000,
             description: "Servo period in microseconds (100..=10000)",
+        },
+        arms: u32 {
+            default: 1,
+            description: "Arms served by the controller (1 or 2; arm 1's devices are /dev/hap1_*)",
         },
         allow_non_rt: bool {
             default: false,
@@ -111,39 +118,70 @@ const SERVO_PRIORITY: u8 = 80;
 const PROTO_IN_CLASS: SchedClass = SchedClass::FifoLow;
 const PROTO_IN_PRIORITY: u8 = 1;
 
-/// The char devices (registered before the tasks, removed after them),
-/// each with the component it serves.
-struct Devices {
+/// One arm's char devices, each with the component it serves.
+struct ArmDevices {
     _rtf_in: Pin<KBox<Registration<RtfIn>>>,
     _rtf_out: Pin<KBox<Registration<RtfOut>>>,
-    _stop: Pin<KBox<Registration<Stop>>>,
     _power: Pin<KBox<Registration<Power>>>,
     _stats: Pin<KBox<Registration<StatsDevice>>>,
-    _hist: Pin<KBox<Registration<HistDevice>>>,
     _effort: Pin<KBox<Registration<Effort>>>,
     _simlog: Pin<KBox<Registration<SimLog>>>,
-    _fault: Pin<KBox<Registration<FaultDevice>>>,
 }
 
-impl Devices {
-    fn register(c: &Arc<Controller>) -> Result<Self> {
-        Ok(Devices {
-            _rtf_in: Registration::register(c.rtf.clone())?,
-            _rtf_out: Registration::register(c.rtf.clone())?,
-            _stop: Registration::register(c.life.clone())?,
-            _power: Registration::register(c.io.clone())?,
-            _stats: Registration::register(c.clone())?,
-            _hist: Registration::register(c.clone())?,
-            _effort: Registration::register(c.effort.clone())?,
-            _simlog: Registration::register(c.log.clone())?,
-            _fault: Registration::register(c.faults.clone())?,
+impl ArmDevices {
+    fn register(c: &Arc<Controller>, arm: &Arc<Arm>) -> Result<Self> {
+        let i = arm.index;
+        let view = Arc::new(
+            StatsView {
+                ctrl: c.clone(),
+                arm: arm.clone(),
+            },
+            GFP_KERNEL,
+        )?;
+        Ok(ArmDevices {
+            _rtf_in: Registration::register(i, arm.rtf.clone())?,
+            _rtf_out: Registration::register(i, arm.rtf.clone())?,
+            _power: Registration::register(i, arm.io.clone())?,
+            _stats: Registration::register(i, view)?,
+            _effort: Registration::register(i, arm.effort.clone())?,
+            _simlog: Registration::register(i, arm.log.clone())?,
         })
     }
 }
 
+/// The char devices (registered before the tasks, removed after them): the
+/// controller's own, then each arm's.
+struct Devices {
+    _stop: Pin<KBox<Registration<Stop>>>,
+    _hist: Pin<KBox<Registration<HistDevice>>>,
+    _fault: Pin<KBox<Registration<FaultDevice>>>,
+    _arms: [Option<ArmDevices>; MAX_ARMS],
+}
+
+impl Devices {
+    fn register(c: &Arc<Controller>) -> Result<Self> {
+        let mut arms: [Option<ArmDevices>; MAX_ARMS] = [const { None }; MAX_ARMS];
+        let stop = Registration::register(0, c.life.clone())?;
+        let hist = Registration::register(0, c.clone())?;
+        let fault = Registration::register(0, c.faults.clone())?;
+        for (slot, arm) in arms.iter_mut().zip(c.arms()) {
+            *slot = Some(ArmDevices::register(c, arm)?);
+        }
+        Ok(Devices {
+            _stop: stop,
+            _hist: hist,
+            _fault: fault,
+            _arms: arms,
+        })
+    }
+}
+
+/// PROTO_IN's thread name for each arm.
+const PROTO_IN_NAMES: [&CStr; MAX_ARMS] = [c"hap_proto_in", c"hap_proto_in1"];
+
 /// The kernel tasks, in creation order.
 struct Tasks {
-    proto_in: Option<KThread<Controller>>,
+    proto_in: [Option<KThread<ProtoInTask>>; MAX_ARMS],
     servo: Option<KThread<Controller>>,
     clock: Option<KThread<Controller>>,
     timers: Option<Timers>,
@@ -157,16 +195,27 @@ impl Tasks {
         };
         // Partial failures unwind through `Drop for Tasks` (reverse order).
         let mut tasks = Tasks {
-            proto_in: None,
+            proto_in: [const { None }; MAX_ARMS],
             servo: None,
             clock: None,
             timers: None,
         };
-        tasks.proto_in = Some(spawn(
-            c_str!("hap_proto_in"),
-            PROTO_IN_CLASS,
-            proto_in::proto_in_main,
-        )?);
+        for ((arm, name), slot) in ctrl
+            .arms()
+            .zip(PROTO_IN_NAMES)
+            .zip(tasks.proto_in.iter_mut())
+        {
+            let task = Arc::new(
+                ProtoInTask {
+                    ctrl: ctrl.clone(),
+                    arm: arm.index,
+                },
+                GFP_KERNEL,
+            )?;
+            let t = KThread::spawn(name, PROTO_IN_CLASS, task, proto_in::proto_in_main)
+                .inspect_err(|e| pr_err!("cannot start {}: {:?}\n", name, e))?;
+            *slot = Some(t);
+        }
         tasks.servo = Some(spawn(
             c_str!("hap_servo"),
             SchedClass::Fifo(SERVO_PRIORITY),
@@ -189,7 +238,9 @@ impl Drop for Tasks {
         drop(self.timers.take());
         drop(self.clock.take());
         drop(self.servo.take());
-        drop(self.proto_in.take());
+        for t in self.proto_in.iter_mut().rev() {
+            drop(t.take());
+        }
     }
 }
 
@@ -211,9 +262,15 @@ impl kernel::Module for HapticCtrl {
             );
             return Err(EINVAL);
         }
+        let arms = module_parameters::arms.value();
+        let n_arms = usize::try_from(arms).unwrap_or(0);
+        if n_arms == 0 || n_arms > MAX_ARMS {
+            pr_err!("arms={} out of range 1..={}\n", arms, MAX_ARMS);
+            return Err(EINVAL);
+        }
         let allow_non_rt = module_parameters::allow_non_rt.value();
         kconfig::check(period_us, allow_non_rt)?;
-        let ctrl = Arc::pin_init(Controller::new(period_us)?, GFP_KERNEL)
+        let ctrl = Arc::pin_init(Controller::new(period_us, n_arms)?, GFP_KERNEL)
             .inspect_err(|e| pr_err!("cannot create the channels: {:?}\n", e))?;
         let mut this = HapticCtrl {
             ctrl: ctrl.clone(),
@@ -224,6 +281,9 @@ impl kernel::Module for HapticCtrl {
         servo::calibrate(&ctrl)?;
         this.devices = Some(Devices::register(&ctrl)?);
         this.tasks = Some(Tasks::start(&ctrl)?);
+        if n_arms > 1 {
+            pr_info!("serving {} arms (arm 1: /dev/hap1_*)\n", n_arms);
+        }
         pr_info!(
             "loaded, period {} us, CLOCK/SERVO/PROTO_IN at SCHED_FIFO {}/{}/{}, crc32c check {:#010x}\n",
             period_us,

@@ -102,7 +102,7 @@ fn write_torques(w: &mut impl Write, tau: &Joints) -> core::fmt::Result {
 pub(crate) struct Power;
 
 impl HapDevice for Power {
-    const NAME: &'static CStr = c"hap_power";
+    const NAMES: &'static [&'static CStr] = &[c"hap_power", c"hap1_power"];
 
     type Part = ArmIo;
 

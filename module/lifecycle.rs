@@ -94,7 +94,7 @@ impl Lifecycle {
 pub(crate) struct Stop;
 
 impl HapDevice for Stop {
-    const NAME: &'static CStr = c"hap_stop";
+    const NAMES: &'static [&'static CStr] = &[c"hap_stop"];
     type Part = Lifecycle;
 
     fn open(_life: &Arc<Lifecycle>) -> Result<Self> {

@@ -63,7 +63,7 @@ impl PositionLog {
 pub(crate) struct SimLog;
 
 impl HapDevice for SimLog {
-    const NAME: &'static CStr = c"hap_simlog";
+    const NAMES: &'static [&'static CStr] = &[c"hap_simlog", c"hap1_simlog"];
 
     type Part = PositionLog;
 

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: GPL-2.0
 
-//! PROTO_IN (the spec's hap_proto_in): the lowest-priority RT task. Sleeps
+//! PROTO_IN (the spec's hap_proto_in): the lowest-priority RT task, one per
+//! arm (`hap_proto_in`, `hap_proto_in1`), each serving its arm only. Sleeps
 //! until rtf_in holds a frame (`sem_rtf_in`), then under `mtx_proto` lets
 //! hap-core's `ProtoIn` check and decode it into VPr, and carries out the
 //! outcome: configuration published under the rwsem, power request handed to
@@ -11,6 +12,7 @@
 //! /dev/hap_stats never take `mtx_proto`.
 
 use crate::{
+    arm::Arm,
     completion::{Timeout, Wait},
     controller::Controller,
     hap_core::protocol::{encode, FrameHeader, MAX_FRAME_LEN},
@@ -18,38 +20,55 @@ use crate::{
     kthread::CurrentKThread,
     ring::Producer,
 };
-use kernel::{prelude::*, sync::atomic::Relaxed};
+use kernel::{
+    prelude::*,
+    sync::{atomic::Relaxed, Arc},
+};
 
 /// PROTO_IN wakes at least this often to check for a stop.
 const FRAME_WAIT: Timeout = Timeout::from_millis(100);
 
+/// What one PROTO_IN thread serves: arm `arm` of the controller.
+pub(crate) struct ProtoInTask {
+    pub(crate) ctrl: Arc<Controller>,
+    pub(crate) arm: usize,
+}
+
 /// PROTO_IN's thread body.
-pub(crate) fn proto_in_main(kt: &CurrentKThread, sh: &Controller) {
-    // PROTO_IN's sides of the FIFOs, held for its lifetime.
+pub(crate) fn proto_in_main(kt: &CurrentKThread, task: &ProtoInTask) {
+    let sh = &*task.ctrl;
+    let Some(arm) = sh.arm(task.arm) else {
+        pr_err!("PROTO_IN: no arm {}\n", task.arm);
+        return;
+    };
+    // PROTO_IN's sides of the arm's FIFOs, held for its lifetime.
     let (Some(frames), Some(replies)) = (
-        sh.rtf.rtf_in.claim_consumer(),
-        sh.rtf.rtf_replies.claim_producer(),
+        arm.rtf.rtf_in.claim_consumer(),
+        arm.rtf.rtf_replies.claim_producer(),
     ) else {
-        pr_err!("PROTO_IN: its FIFO sides are already held\n");
+        pr_err!(
+            "PROTO_IN: arm {}'s FIFO sides are already held\n",
+            arm.index
+        );
         return;
     };
     let mut frame = [0u8; MAX_FRAME_LEN];
     while !kt.should_stop() && !sh.life.is_stopping() {
-        if sh.rtf.rtf_in_ready.wait_timeout(FRAME_WAIT) == Wait::TimedOut {
+        if arm.rtf.rtf_in_ready.wait_timeout(FRAME_WAIT) == Wait::TimedOut {
             continue;
         }
         while let Some(len) = frames.pop(&mut frame) {
             if sh.life.is_stopping() {
                 return;
             }
-            handle_frame(sh, &replies, frame.get(..len).unwrap_or(&[]));
+            handle_frame(sh, arm, &replies, frame.get(..len).unwrap_or(&[]));
         }
     }
 }
 
-fn handle_frame(sh: &Controller, replies: &Producer<'_, MAX_FRAME_LEN>, bytes: &[u8]) {
+fn handle_frame(sh: &Controller, arm: &Arm, replies: &Producer<'_, MAX_FRAME_LEN>, bytes: &[u8]) {
     let now_cycle = sh.clock.handshake.tick();
-    let mut proto = sh.proto.lock();
+    let mut proto = arm.proto.lock();
     let outcome = proto.handle(bytes, now_cycle, sh.time.period_us);
     let session = proto.session();
     let config = if outcome.config_changed {
@@ -58,22 +77,22 @@ fn handle_frame(sh: &Controller, replies: &Producer<'_, MAX_FRAME_LEN>, bytes: &
         None
     };
     // SERVO's view of VPr and session, and the counters, under `mtx_proto`.
-    sh.proto.publish_vpr(&proto);
-    sh.proto.publish_counters(&proto);
+    arm.proto.publish_vpr(&proto);
+    arm.proto.publish_counters(&proto);
     drop(proto);
 
     if let Some(cfg) = config {
-        *sh.servo.config.write() = cfg;
+        *arm.servo.config.write() = cfg;
     }
     if let Some(on) = outcome.power {
-        sh.io.request_power(if on {
+        arm.io.request_power(if on {
             PowerRequest::On
         } else {
             PowerRequest::Off
         });
     }
     if let Some(reply) = outcome.reply {
-        let rtf = &sh.rtf;
+        let rtf = &arm.rtf;
         let header = FrameHeader {
             control: 0,
             session,

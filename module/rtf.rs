@@ -123,7 +123,7 @@ impl RtfPair {
 pub(crate) struct RtfIn;
 
 impl HapDevice for RtfIn {
-    const NAME: &'static CStr = c"hap_rtf_in";
+    const NAMES: &'static [&'static CStr] = &[c"hap_rtf_in", c"hap1_rtf_in"];
 
     type Part = RtfPair;
 
@@ -170,7 +170,7 @@ impl HapDevice for RtfIn {
 pub(crate) struct RtfOut;
 
 impl HapDevice for RtfOut {
-    const NAME: &'static CStr = c"hap_rtf_out";
+    const NAMES: &'static [&'static CStr] = &[c"hap_rtf_out", c"hap1_rtf_out"];
 
     type Part = RtfPair;
 

@@ -24,10 +24,17 @@
 //! the fail-safe cuts it whatever SERVO is doing.
 
 use crate::{
+    arm::{Arm, MAX_ARMS},
     completion::{Timeout, Wait},
     controller::Controller,
-    hap_core::{mode::ServoMode, position_log::LogTiming},
+    effort::EffortTaker,
+    hap_core::{
+        mode::ServoMode,
+        position_log::{LogRecord, LogTiming},
+        protocol::MAX_FRAME_LEN,
+    },
     kthread::CurrentKThread,
+    ring::Producer,
     servo_cycle,
 };
 use kernel::prelude::*;
@@ -35,20 +42,37 @@ use kernel::prelude::*;
 /// SERVO wakes at least this often at the barrier to check for a stop.
 const BARRIER_WAIT: Timeout = Timeout::from_millis(100);
 
-/// SERVO's thread body.
+/// SERVO's sides of one arm's rings, held for SERVO's lifetime, and the
+/// arm's protocol session for its log (kept while the latch is being
+/// written).
+struct ArmSides<'a> {
+    arm: &'a Arm,
+    answers: Producer<'a, MAX_FRAME_LEN>,
+    effort: EffortTaker<'a>,
+    session: u16,
+}
+
+/// SERVO's thread body: one cycle steps every arm, arm 0 first.
 pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Controller) {
     let clock = &sh.clock;
     let hs = &clock.handshake;
-    // SERVO's sides of rtf_out and of the effort hand-off, held for its
-    // lifetime.
-    let (Some(answers), Some(effort)) = (sh.rtf.rtf_out.claim_producer(), sh.effort.claim_taker())
-    else {
-        pr_err!("SERVO: its FIFO sides are already held\n");
-        return;
-    };
-    // The protocol session, for the log (kept when the latch is being written).
-    let mut session = 0u16;
-    while !kt.should_stop() && !sh.life.is_stopping() {
+    let mut sides: [Option<ArmSides<'_>>; MAX_ARMS] = [const { None }; MAX_ARMS];
+    for (slot, arm) in sides.iter_mut().zip(sh.arms()) {
+        let (Some(answers), Some(effort)) =
+            (arm.rtf.rtf_out.claim_producer(), arm.effort.claim_taker())
+        else {
+            pr_err!("SERVO: arm {}'s FIFO sides are already held\n", arm.index);
+            return;
+        };
+        *slot = Some(ArmSides {
+            arm,
+            answers,
+            effort,
+            session: 0,
+        });
+    }
+    let mut recs = [LogRecord::ZERO; MAX_ARMS];
+    'cycles: while !kt.should_stop() && !sh.life.is_stopping() {
         hs.set_servo_waiting(true);
         let w = clock.cycle_start.wait_timeout(BARRIER_WAIT);
         hs.set_servo_waiting(false);
@@ -69,49 +93,59 @@ pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Controller) {
         let expiry_ns = clock.expiry_ns();
         clock.stamp_servo_start(start_ns);
 
-        let mut data = sh.servo.data.lock();
-        if inject_fault(kt, sh) == Injected::Hung {
-            // The hung SERVO is released only by rmmod: it never finishes.
-            break;
+        for (s, rec) in sides.iter().flatten().zip(recs.iter_mut()) {
+            let mut data = s.arm.servo.data.lock();
+            // Faults are acted out inside the first arm's `mtx_data`.
+            if s.arm.index == 0 && inject_fault(kt, sh) == Injected::Hung {
+                // The hung SERVO is released only by rmmod: it never finishes.
+                break 'cycles;
+            }
+            s.effort.take(&mut data);
+            servo_cycle::run(sh, s.arm, &s.answers, &mut data, mode);
+            *rec = *data.cycle.servo.log_record();
+            drop(data);
         }
-        effort.take(&mut data);
-        servo_cycle::run(sh, &answers, &mut data, mode);
-        let mut rec = *data.cycle.servo.log_record();
-        drop(data);
 
-        if let Some((s, _)) = sh.proto.latest_vpr() {
-            session = s;
+        for s in sides.iter_mut().flatten() {
+            if let Some((session, _)) = s.arm.proto.latest_vpr() {
+                s.session = session;
+            }
         }
         let end_ns = sh.time.now_ns();
         clock.stamp_servo_end(end_ns);
-        // The position log, with this cycle's timing (pushed after the
-        // cycle so that the execution time includes everything SERVO did).
-        rec.timing = LogTiming {
-            tick: start.tick,
-            start_ns: u64::try_from(start_ns).unwrap_or(0),
-            wakeup_ns: ns_u32(start_ns.saturating_sub(expiry_ns)),
-            exec_ns: ns_u32(end_ns.saturating_sub(start_ns)),
-            session,
-        };
-        sh.log.push(&rec);
+        // Each arm's position log, with this cycle's timing (pushed after
+        // the cycle so that the execution time includes everything SERVO
+        // did).
+        for (s, rec) in sides.iter().flatten().zip(recs.iter_mut()) {
+            rec.timing = LogTiming {
+                tick: start.tick,
+                start_ns: u64::try_from(start_ns).unwrap_or(0),
+                wakeup_ns: ns_u32(start_ns.saturating_sub(expiry_ns)),
+                exec_ns: ns_u32(end_ns.saturating_sub(start_ns)),
+                session: s.session,
+            };
+            s.arm.log.push(rec);
+        }
         hs.servo_end(start.tick);
     }
 }
 
 /// The initial calibration (spec §3.2), at insmod before the tasks start:
-/// one servo cycle with the arm at rest and no client. It takes every lock
+/// one servo cycle of each arm at rest and no client. It takes every lock
 /// of the cycle once, so first-use costs (lockdep registering its classes on
 /// the debug kernel: milliseconds) are not paid inside the first real-time
 /// cycle. Its inputs are those of every cycle before a client or a user acts,
 /// so the host replay starts from the same state.
 pub(crate) fn calibrate(sh: &Controller) -> Result {
-    // SERVO's side of rtf_out, given back before SERVO starts.
-    let answers = sh.rtf.rtf_out.claim_producer().ok_or(EBUSY)?;
-    let mut data = sh.servo.data.lock();
-    servo_cycle::run(sh, &answers, &mut data, ServoMode::Main);
-    let rec = *data.cycle.servo.log_record();
-    drop(data);
-    sh.log.push(&rec);
+    for arm in sh.arms() {
+        // SERVO's side of rtf_out, given back before SERVO starts.
+        let answers = arm.rtf.rtf_out.claim_producer().ok_or(EBUSY)?;
+        let mut data = arm.servo.data.lock();
+        servo_cycle::run(sh, arm, &answers, &mut data, ServoMode::Main);
+        let rec = *data.cycle.servo.log_record();
+        drop(data);
+        arm.log.push(&rec);
+    }
     Ok(())
 }
 

@@ -18,6 +18,7 @@
 //! `answers_dropped`), SERVO never waits for its reader.
 
 use crate::{
+    arm::Arm,
     controller::Controller,
     hap_core::{
         cycle::ServoCycle,
@@ -29,25 +30,26 @@ use crate::{
 };
 use kernel::sync::atomic::Relaxed;
 
-/// Run one servo cycle in `mode` on SERVO's `data`; the answers go out
-/// through `answers`, SERVO's side of rtf_out.
+/// Run one servo cycle of `arm` in `mode` on its SERVO `data`; the answers
+/// go out through `answers`, SERVO's side of the arm's rtf_out.
 pub(crate) fn run(
     sh: &Controller,
+    arm: &Arm,
     answers: &Producer<'_, MAX_FRAME_LEN>,
     data: &mut ServoData,
     mode: ServoMode,
 ) {
     // Configuration: a fresh copy unless PROTO_IN is writing it.
-    match sh.servo.config.try_read() {
+    match arm.servo.config.try_read() {
         Some(cfg) => data.config = *cfg,
         None => {
-            sh.servo.config_busy.add(1, Relaxed);
+            arm.servo.config_busy.add(1, Relaxed);
         }
     }
     // After a fail-safe the motor line refuses a power-on by itself.
-    let power_request = sh.io.take_power_request();
+    let power_request = arm.io.take_power_request();
     if power_request == PowerRequest::On {
-        sh.servo
+        arm.servo
             .power_on_cycle
             .store(data.cycle.servo.cycle(), Relaxed);
     }
@@ -58,19 +60,19 @@ pub(crate) fn run(
 
     // receive_vp: the VPr latch (`None` while a publication is being
     // written: hap-core extrapolates).
-    let vpr = sh.proto.latest_vpr().map(|(_, v)| v);
+    let vpr = arm.proto.latest_vpr().map(|(_, v)| v);
     let config = data.config;
     let result = data
         .cycle
-        .run(&sh.io.motor_line, &inputs, &config, vpr.as_ref(), mode);
-    sh.io.set_last_status(result.vp.status);
+        .run(&arm.io.motor_line, &inputs, &config, vpr.as_ref(), mode);
+    arm.io.set_last_status(result.vp.status);
     if result.extrapolated {
-        sh.servo.vpr_extrapolated.add(1, Relaxed);
+        arm.servo.vpr_extrapolated.add(1, Relaxed);
     }
 
     // send_vp: the session as it is now (it may have closed meanwhile).
-    let rtf = &sh.rtf;
-    let Some((session, _)) = sh.proto.latest_vpr() else {
+    let rtf = &arm.rtf;
+    let Some((session, _)) = arm.proto.latest_vpr() else {
         rtf.answers_skipped_latch_busy.add(1, Relaxed);
         return;
     };

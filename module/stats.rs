@@ -17,6 +17,7 @@
 //! controller's monitor: they are registered with the whole `Controller`.
 
 use crate::{
+    arm::Arm,
     controller::Controller,
     device::{HapDevice, OpenFile},
     hap_core::{
@@ -39,7 +40,15 @@ use kernel::{
 
 const STATS_TEXT_MAX: usize = 8192;
 
-/// `/dev/hap_stats`: the text rendered at open.
+/// What one arm's statistics device shows: CLOCK's statistics and arm
+/// `arm`'s counters.
+pub(crate) struct StatsView {
+    pub(crate) ctrl: Arc<Controller>,
+    pub(crate) arm: Arc<Arm>,
+}
+
+/// `/dev/hap_stats` (arm 0), `/dev/hap1_stats` (arm 1): the text rendered
+/// at open.
 pub(crate) struct StatsDevice {
     text: KVVec<u8>,
 }
@@ -60,21 +69,21 @@ fn copy_stats(sh: &Controller) -> Result<KBox<HapStats>> {
     Ok(st)
 }
 
-fn render(sh: &Controller, st: &mut HapStats, out: &mut [u8]) -> usize {
-    let publication = sh.proto.publication();
+fn render(sh: &Controller, arm: &Arm, st: &mut HapStats, out: &mut [u8]) -> usize {
+    let publication = arm.proto.publication();
     let proto_counters = &publication.counters;
-    let (rtf_out_len, _, _) = sh.rtf.rtf_out.counts();
-    let (replies_len, _, _) = sh.rtf.rtf_replies.counts();
-    let (rtf_in_len, _, _) = sh.rtf.rtf_in.counts();
-    let (simlog_len, simlog_pushed, simlog_dropped) = sh.log.counts();
+    let (rtf_out_len, _, _) = arm.rtf.rtf_out.counts();
+    let (replies_len, _, _) = arm.rtf.rtf_replies.counts();
+    let (rtf_in_len, _, _) = arm.rtf.rtf_in.counts();
+    let (simlog_len, simlog_pushed, simlog_dropped) = arm.log.counts();
     let summary = {
         let c = &mut st.counters;
         c.frames_in = proto_counters.accepted;
-        c.frames_out = sh.rtf.answers_sent.load(Relaxed);
+        c.frames_out = arm.rtf.answers_sent.load(Relaxed);
         c.frames_rejected = proto_counters.decode_rejects;
         // Frames a full rtf_out refused: counted by SERVO and PROTO_IN.
-        c.answers_dropped = sh.rtf.answers_dropped.load(Relaxed);
-        c.vpr_extrapolated = sh.servo.vpr_extrapolated.load(Relaxed);
+        c.answers_dropped = arm.rtf.answers_dropped.load(Relaxed);
+        c.vpr_extrapolated = arm.servo.vpr_extrapolated.load(Relaxed);
         st.summary()
     };
     let n = render_summary(&summary, out).len;
@@ -84,7 +93,7 @@ fn render(sh: &Controller, st: &mut HapStats, out: &mut [u8]) -> usize {
     let mut w = SliceWriter::new(rest);
     let state = sh.life.state();
     let mode = sh.clock.handshake.mode().name();
-    let status = sh.io.arm_status();
+    let status = arm.io.arm_status();
     let _ = (|| -> core::fmt::Result {
         writeln!(w, "state: {}", state.name())?;
         writeln!(w, "mode: {mode}")?;
@@ -102,7 +111,7 @@ fn render(sh: &Controller, st: &mut HapStats, out: &mut [u8]) -> usize {
             "motors_enabled: {}",
             u8::from(status & crate::hap_core::vp::status::MOTORS_ENABLED != 0)
         )?;
-        let gate = sh.io.motor_line.gate();
+        let gate = arm.io.motor_line.gate();
         writeln!(
             w,
             "motors_inhibited: {}",
@@ -113,12 +122,12 @@ fn render(sh: &Controller, st: &mut HapStats, out: &mut [u8]) -> usize {
         writeln!(
             w,
             "rtf_in.bad_length: {}",
-            sh.rtf.rtf_in_counters.bad_length.load(Relaxed)
+            arm.rtf.rtf_in_counters.bad_length.load(Relaxed)
         )?;
         writeln!(
             w,
             "rtf_in.full: {}",
-            sh.rtf.rtf_in_counters.full.load(Relaxed)
+            arm.rtf.rtf_in_counters.full.load(Relaxed)
         )?;
         writeln!(w, "rtf_in.queued: {rtf_in_len}")?;
         writeln!(w, "rtf_out.queued: {rtf_out_len}")?;
@@ -128,22 +137,22 @@ fn render(sh: &Controller, st: &mut HapStats, out: &mut [u8]) -> usize {
         writeln!(w, "simlog.pushed: {simlog_pushed}")?;
         writeln!(w, "simlog.dropped: {simlog_dropped}")?;
         writeln!(w, "stats_read_busy: {}", sh.stats.read_busy())?;
-        writeln!(w, "answers_sent: {}", sh.rtf.answers_sent.load(Relaxed))?;
+        writeln!(w, "answers_sent: {}", arm.rtf.answers_sent.load(Relaxed))?;
         writeln!(
             w,
             "answers_skipped_latch_busy: {}",
-            sh.rtf.answers_skipped_latch_busy.load(Relaxed)
+            arm.rtf.answers_skipped_latch_busy.load(Relaxed)
         )?;
-        writeln!(w, "config_busy: {}", sh.servo.config_busy.load(Relaxed))?;
+        writeln!(w, "config_busy: {}", arm.servo.config_busy.load(Relaxed))?;
         writeln!(
             w,
             "effort_loaded_cycle: {}",
-            cycle_or_never(sh.effort.loaded_cycle())
+            cycle_or_never(arm.effort.loaded_cycle())
         )?;
         writeln!(
             w,
             "power_on_cycle: {}",
-            cycle_or_never(sh.servo.power_on_cycle())
+            cycle_or_never(arm.servo.power_on_cycle())
         )?;
         writeln!(
             w,
@@ -155,7 +164,9 @@ fn render(sh: &Controller, st: &mut HapStats, out: &mut [u8]) -> usize {
             w,
             "hrtimer_resolution_ns: {}",
             crate::kconfig::hrtimer_resolution_ns()
-        )
+        )?;
+        writeln!(w, "arms: {}", sh.arm_count())?;
+        writeln!(w, "arm: {}", arm.index)
     })();
     n.saturating_add(w.len())
 }
@@ -170,13 +181,15 @@ fn snapshot(max: usize, render: impl FnOnce(&mut [u8]) -> usize) -> Result<KVVec
 }
 
 impl HapDevice for StatsDevice {
-    const NAME: &'static CStr = c"hap_stats";
+    const NAMES: &'static [&'static CStr] = &[c"hap_stats", c"hap1_stats"];
 
-    type Part = Controller;
+    type Part = StatsView;
 
-    fn open(sh: &Arc<Controller>) -> Result<Self> {
-        let mut st = copy_stats(sh)?;
-        let text = snapshot(STATS_TEXT_MAX, |out| render(sh, &mut st, out))?;
+    fn open(view: &Arc<StatsView>) -> Result<Self> {
+        let mut st = copy_stats(&view.ctrl)?;
+        let text = snapshot(STATS_TEXT_MAX, |out| {
+            render(&view.ctrl, &view.arm, &mut st, out)
+        })?;
         Ok(StatsDevice { text })
     }
 
@@ -191,7 +204,7 @@ pub(crate) struct HistDevice {
 }
 
 impl HapDevice for HistDevice {
-    const NAME: &'static CStr = c"hap_hist";
+    const NAMES: &'static [&'static CStr] = &[c"hap_hist"];
 
     type Part = Controller;
 

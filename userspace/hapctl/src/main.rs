@@ -22,6 +22,10 @@ struct Cli {
     /// Directory holding the module's devices (hap_power, hap_stats, ...).
     #[arg(long, global = true, env = "HAPCTL_DEV_DIR", default_value = "/dev")]
     dev_dir: PathBuf,
+    /// The arm whose devices to use (0: /dev/hap_*, 1: /dev/hap1_* of a
+    /// controller loaded with arms=2).
+    #[arg(long, global = true, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=1))]
+    arm: u8,
     #[command(subcommand)]
     cmd: Cmd,
 }
@@ -179,8 +183,13 @@ fn main() -> ExitCode {
     }
 }
 
-fn dev(cli_dir: &Path, name: &str) -> PathBuf {
-    cli_dir.join(name)
+/// Arm `arm`'s device `name` (`hap_power`...) in `cli_dir`: arm 0's keep
+/// their name, arm 1's are `hap1_*`.
+fn dev(cli_dir: &Path, arm: u8, name: &str) -> PathBuf {
+    match (arm, name.strip_prefix("hap_")) {
+        (1, Some(rest)) => cli_dir.join(format!("hap1_{rest}")),
+        _ => cli_dir.join(name),
+    }
 }
 
 fn write_dev(path: &Path, data: &[u8]) -> Result<(), String> {
@@ -239,6 +248,8 @@ fn run_script(script: Option<PathBuf>, args: &[String]) -> Result<(), String> {
 
 fn run(cli: Cli) -> Result<(), String> {
     let d = cli.dev_dir.as_path();
+    let arm = cli.arm;
+    let dev = |d: &Path, name: &str| dev(d, arm, name);
     match cli.cmd {
         Cmd::Start { period_us, script } => {
             let mut args = vec!["start".to_string()];

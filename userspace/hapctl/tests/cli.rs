@@ -64,6 +64,29 @@ fn wrong_arguments_fail_clearly() {
 }
 
 #[test]
+fn arm_one_uses_its_own_devices() {
+    let d = tmpdir("arm1");
+    std::fs::write(d.join("hap_power"), "").unwrap();
+    std::fs::write(d.join("hap1_power"), "").unwrap();
+    std::fs::write(d.join("hap1_effort"), "").unwrap();
+    let o = hapctl(&d, &["--arm", "1", "power", "on"]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert_eq!(std::fs::read_to_string(d.join("hap1_power")).unwrap(), "1");
+    assert_eq!(std::fs::read_to_string(d.join("hap_power")).unwrap(), "");
+    let o = hapctl(
+        &d,
+        &["sim", "live", "1", "0", "0", "0", "0", "0", "--arm", "1"],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(std::fs::read_to_string(d.join("hap1_effort"))
+        .unwrap()
+        .starts_with("live "));
+    let o = hapctl(&d, &["--arm", "2", "power", "on"]);
+    assert!(!o.status.success());
+    assert!(err(&o).contains("--arm"), "{}", err(&o));
+}
+
+#[test]
 fn power_sim_and_stats_write_and_read_devices() {
     let d = tmpdir("dev");
     std::fs::write(d.join("hap_power"), "").unwrap();
