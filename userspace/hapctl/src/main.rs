@@ -39,6 +39,11 @@ enum Cmd {
             i64::from(hap_core::clock::PERIOD_MIN_US)..=i64::from(hap_core::clock::PERIOD_MAX_US)
         ))]
         period_us: Option<u32>,
+        /// Arms the controller serves (module parameter arms; 2: arm 1's
+        /// devices are /dev/hap1_*, and the launch script starts a bridge
+        /// for each arm).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
+        arms: Option<u8>,
         /// The launch script (default: $HAPCTL_SCRIPT, else hapticctrl.sh next to hapctl, else from PATH).
         #[arg(long)]
         script: Option<PathBuf>,
@@ -251,11 +256,18 @@ fn run(cli: Cli) -> Result<(), String> {
     let arm = cli.arm;
     let dev = |d: &Path, name: &str| dev(d, arm, name);
     match cli.cmd {
-        Cmd::Start { period_us, script } => {
+        Cmd::Start {
+            period_us,
+            arms,
+            script,
+        } => {
             let mut args = vec!["start".to_string()];
             if let Some(p) = period_us {
                 args.push("--period-us".into());
                 args.push(p.to_string());
+            }
+            if let Some(n) = arms {
+                args.push(format!("arms={n}"));
             }
             run_script(script, &args)
         }

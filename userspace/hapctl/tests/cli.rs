@@ -363,6 +363,36 @@ fn launch_script_starts_and_stops_with_fake_tools() {
     let o = run(&["stop"]);
     assert!(o.status.success(), "{}", err(&o));
     assert!(String::from_utf8_lossy(&o.stdout).contains("proto_interface stopped"));
+    // Two arms: the module gets arms=2 and arm 1 a bridge of its own (its
+    // port, devices and counters); stop ends both.
+    std::fs::remove_file(&calls).unwrap();
+    let o = run(&["start", "--arms", "2"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let c = std::fs::read_to_string(&calls).unwrap();
+    assert!(
+        c.contains(&format!("insmod {} arms=2", ko.display())),
+        "{c}"
+    );
+    assert!(
+        c.contains(&format!("proto --key {} --port 5001", key.display())),
+        "{c}"
+    );
+    assert!(
+        c.contains(&format!(
+            "proto --key {} --stats-file {}/proto_interface1.stats --rtf-in /dev/hap1_rtf_in --rtf-out /dev/hap1_rtf_out --port 5001",
+            key.display(),
+            d.display()
+        )),
+        "{c}"
+    );
+    assert!(d.join("proto_interface1.pid").exists());
+    let o = run(&["stop"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert_eq!(out.matches("proto_interface stopped").count(), 2, "{out}");
+    assert!(!d.join("proto_interface1.pid").exists());
+    let o = run(&["start", "--arms", "3"]);
+    assert!(!o.status.success());
     // As root, with a user for the bridge: its own stats directory, and the
     // two FIFO devices (here plain files) given to its group, mode 0660.
     use std::os::unix::fs::{MetadataExt, PermissionsExt};
