@@ -11,29 +11,33 @@
 //!   (SCHED_FIFO 90, above SERVO), which reads the cycle handshake
 //!   (`hap_core::handshake`: did SERVO finish this tick?), asks hap-core's
 //!   `Supervisor` for the verdict, records the statistics in its own
-//!   `HapStats` and publishes them through a seqcount (`Shared::stats`:
+//!   `HapStats` and publishes them through a seqcount (`StatsPublication`:
 //!   readers copy, CLOCK never waits for them), sets SERVO's mode (normal,
-//!   degraded or fail-safe), and on a stop request or exactly 5 consecutive
-//!   misses runs the fail-safe in `FAIL_SAFE_SEQUENCE` order, then exits.
-//!   CLOCK takes no lock in its cycle.
-//! - `/dev/hap_stop` (the spec's stop RT-FIFO handler) sets `servo_stop`.
+//!   degraded or fail-safe), and on a stop request (`/dev/hap_stop`, see
+//!   `lifecycle.rs`) or exactly 5 consecutive misses runs the fail-safe in
+//!   `FAIL_SAFE_SEQUENCE` order, then exits. CLOCK takes no lock in its
+//!   cycle.
 
 use crate::{
-    completion::Wait,
-    device::{HapDevice, OpenFile},
-    hap_core::clock::{FailSafeAction, FailSafeCause, Supervisor, Verdict, FAIL_SAFE_SEQUENCE},
-    hap_core::stats::{HapStats, WordSet},
-    shared::{ControllerState, Shared},
+    arm::Arm,
+    completion::{Timeout, Wait},
+    controller::Controller,
+    hap_core::{
+        clock::{FailSafeAction, FailSafeCause, Supervisor, Verdict, FAIL_SAFE_SEQUENCE},
+        io::Gate,
+        position_log::{LogMode, LogRecord, LogTiming},
+        servo::log_flags,
+        stats::WordSet,
+        vp::alarm,
+    },
+    kthread::CurrentKThread,
+    lifecycle::ControllerState,
     time::Ktime,
 };
 use kernel::{
     impl_has_hr_timer,
-    iov::IovIterSource,
     prelude::*,
-    sync::{
-        atomic::{Acquire, Relaxed, Release},
-        Arc, ArcBorrow,
-    },
+    sync::{Arc, ArcBorrow},
     time::{
         hrtimer::{
             AbsoluteHardMode, ArcHrTimerHandle, HrTimer, HrTimerCallback, HrTimerCallbackContext,
@@ -43,12 +47,15 @@ use kernel::{
     },
 };
 
+/// The CLOCK thread wakes at least this often to check for a stop.
+const CHECK_WAIT: Timeout = Timeout::from_millis(100);
+
 /// The cycle timer: posts the cycle start.
 #[pin_data]
 pub(crate) struct CycleTimer {
     #[pin]
     timer: HrTimer<Self>,
-    shared: Arc<Shared>,
+    shared: Arc<Controller>,
 }
 
 /// The check timer: 3/4 of a period after each cycle start.
@@ -56,7 +63,7 @@ pub(crate) struct CycleTimer {
 pub(crate) struct CheckTimer {
     #[pin]
     timer: HrTimer<Self>,
-    shared: Arc<Shared>,
+    shared: Arc<Controller>,
 }
 
 /// Both timers, started on the same grid; dropping them cancels them.
@@ -66,8 +73,8 @@ pub(crate) struct Timers {
 }
 
 impl Timers {
-    pub(crate) fn start(shared: &Arc<Shared>) -> Result<Self> {
-        let period = shared.period_ns();
+    pub(crate) fn start(shared: &Arc<Controller>) -> Result<Self> {
+        let period = shared.time.period_ns();
         let first = Ktime::now().saturating_add_ns(period);
         let check_first = first.saturating_add_ns(period / 4 * 3);
         let cycle = Arc::pin_init(
@@ -90,21 +97,20 @@ impl HrTimerCallback for CycleTimer {
 
     fn run(this: ArcBorrow<'_, Self>, mut ctx: HrTimerCallbackContext<'_, Self>) -> HrTimerRestart {
         let sh = &this.shared;
-        if sh.is_stopping() {
+        if sh.life.is_stopping() {
             return HrTimerRestart::NoRestart;
         }
-        let expiry = sh.ns_of(Ktime::from_instant(this.timer.expires()));
-        sh.expiry_ns.store(expiry, Release);
-        let now = sh.now_ns();
-        sh.tick_ns.store(now, Relaxed);
-        sh.cycle.top();
+        let clock = &sh.clock;
+        let expiry = sh.time.ns_of(Ktime::from_instant(this.timer.expires()));
+        clock.stamp_tick(expiry, sh.time.now_ns());
+        clock.handshake.top();
         // Rendezvous with SERVO at the barrier.
-        if sh.cycle.servo_waiting() {
-            sh.cycle_start.complete();
+        if clock.handshake.servo_waiting() {
+            clock.cycle_start.complete();
         } else {
-            sh.ticks_not_posted.add(1, Relaxed);
+            clock.count_not_posted();
         }
-        ctx.forward_now(Delta::from_nanos(sh.period_ns()));
+        ctx.forward_now(Delta::from_nanos(sh.time.period_ns()));
         HrTimerRestart::Restart
     }
 }
@@ -120,11 +126,11 @@ impl HrTimerCallback for CheckTimer {
 
     fn run(this: ArcBorrow<'_, Self>, mut ctx: HrTimerCallbackContext<'_, Self>) -> HrTimerRestart {
         let sh = &this.shared;
-        if sh.is_stopping() {
+        if sh.life.is_stopping() {
             return HrTimerRestart::NoRestart;
         }
-        sh.check_due.complete();
-        ctx.forward_now(Delta::from_nanos(sh.period_ns()));
+        sh.clock.check_due.complete();
+        ctx.forward_now(Delta::from_nanos(sh.time.period_ns()));
         HrTimerRestart::Restart
     }
 }
@@ -135,49 +141,44 @@ impl_has_hr_timer! {
     }
 }
 
-pub(crate) use crate::kconfig::hrtimer_resolution_ns;
-
-/// Publish CLOCK's statistics (`set`: what changed since the last time).
-fn publish(sh: &Shared, st: &mut HapStats, set: WordSet) {
-    let w = sh.stats.write();
-    st.visit_words(set, |i, v| w.set(i, *v));
-}
-
 /// CLOCK's thread body.
-pub(crate) fn clock_main(kt: &crate::kthread::CurrentKThread, sh: &Shared) {
+pub(crate) fn clock_main(kt: &CurrentKThread, sh: &Controller) {
     let mut sup = Supervisor::new();
     let mut last_tick_seen = 0u64;
-    // CLOCK's own statistics, taken once: from here on no lock.
-    let Some(mut stats) = sh.clock_stats.lock().take() else {
+    let clock = &sh.clock;
+    // CLOCK's own statistics and their publication, taken once: from here
+    // on no lock.
+    let Some(mut stats) = sh.stats.take_for_clock() else {
         pr_err!("CLOCK: statistics already taken\n");
         return;
     };
-    publish(sh, &mut stats, WordSet::All);
-    while !kt.should_stop() && !sh.is_stopping() {
-        if sh.check_due.wait_timeout(100) == Wait::TimedOut {
+    stats.publish(WordSet::All);
+    while !kt.should_stop() && !sh.life.is_stopping() {
+        if clock.check_due.wait_timeout(CHECK_WAIT) == Wait::TimedOut {
             continue;
         }
-        if sh.is_stopping() {
+        if sh.life.is_stopping() {
             break;
         }
-        if sh.stop_request.load(Acquire) && !sup.stop_requested() {
+        if sh.life.stop_requested() && !sup.stop_requested() {
             sup.request_stop();
         }
-        let c = sh.cycle.check();
+        let c = clock.handshake.check();
         let verdict = sup.check(!c.finished);
-        sh.cycle.set_mode(sup.mode());
+        clock.handshake.set_mode(sup.mode());
         if c.tick != last_tick_seen {
-            stats.record_cycle(
-                sh.expiry_ns.load(Acquire),
-                sh.tick_ns.load(Relaxed),
-                sh.servo_start_ns.load(Acquire),
-                sh.servo_end_ns.load(Acquire),
+            let t = clock.stamps();
+            stats.stats.record_cycle(
+                t.expiry_ns,
+                t.tick_ns,
+                t.servo_start_ns,
+                t.servo_end_ns,
                 c.finished,
             );
             last_tick_seen = c.tick;
         }
-        stats.record_verdict(&verdict);
-        publish(sh, &mut stats, WordSet::Recent);
+        stats.stats.record_verdict(&verdict);
+        stats.publish(WordSet::Recent);
         if let Verdict::FailSafe(cause) = verdict {
             fail_safe(sh, cause);
             return;
@@ -189,80 +190,76 @@ pub(crate) fn clock_main(kt: &crate::kthread::CurrentKThread, sh: &Shared) {
 const RELEASE_WAIT_PERIODS: u32 = 4;
 
 /// The fail-safe (spec §3.4, §4.1), in hap-core's order. Runs in CLOCK.
-pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
-    sh.set_state(ControllerState::FailSafe);
-    let c = sh.cycle.check();
+pub(crate) fn fail_safe(sh: &Controller, cause: FailSafeCause) {
+    let hs = &sh.clock.handshake;
+    sh.life.set_state(ControllerState::FailSafe);
+    let c = hs.check();
     pr_warn!(
         "fail-safe ({}): start (tick {}, servo done tick {}, working {}, not posted {})\n",
         cause.name(),
         c.tick,
         c.done_tick,
         c.working,
-        sh.ticks_not_posted.load(Relaxed)
+        sh.clock.ticks_not_posted()
     );
     for (i, action) in FAIL_SAFE_SEQUENCE.iter().enumerate() {
-        crate::simulator::log_fail_safe_step(
-            sh,
-            u8::try_from(i.saturating_add(1)).unwrap_or(u8::MAX),
-        );
+        for arm in sh.arms() {
+            log_fail_safe_step(
+                sh,
+                arm,
+                u8::try_from(i.saturating_add(1)).unwrap_or(u8::MAX),
+            );
+        }
         match action {
-            // The first two steps act on hap_io's motor line, outside every
-            // lock: the motors apply 0 from here on, whether SERVO is
-            // waiting, inside its cycle holding `mtx_data`, or hung.
-            FailSafeAction::InhibitMotorCommands => sh.motor_line.fail_safe_inhibit(),
-            FailSafeAction::PowerOffArm => sh.motor_line.power_off(),
-            FailSafeAction::CloseProtocol => {
-                sh.close_protocol();
-                sh.rtf_out.close(true);
-                sh.rtf_replies.close(true);
-                sh.rtf_in.close(true);
-            }
-            FailSafeAction::StopTasks => {
-                sh.stopping.store(true, Release);
-                sh.cycle_start.complete_all();
-                sh.rtf_in_ready.complete_all();
-            }
             FailSafeAction::ReleaseResources => {
                 // A SERVO still inside its cycle (an overrun) gets a few
                 // periods to finish it, so that the position log holds the
                 // record of that last cycle, run on the cut line. A hung
                 // SERVO does not finish: the log is closed without it.
                 let mut waited = 0;
-                while sh.cycle.servo_working() && waited < RELEASE_WAIT_PERIODS {
-                    kernel::time::delay::fsleep(Delta::from_nanos(sh.period_ns()));
+                while hs.servo_working() && waited < RELEASE_WAIT_PERIODS {
+                    kernel::time::delay::fsleep(Delta::from_nanos(sh.time.period_ns()));
                     waited = waited.saturating_add(1);
                 }
-                if sh.cycle.servo_working() {
+                if hs.servo_working() {
                     pr_warn!(
                         "fail-safe ({}): SERVO still inside its cycle after {} periods (hung)\n",
                         cause.name(),
                         RELEASE_WAIT_PERIODS
                     );
                 }
-                // The position log stays readable until drained.
-                sh.simlog.close(false);
+                // The position logs stay readable until drained; the rest
+                // is released by rmmod.
+                for arm in sh.arms() {
+                    arm.log.close(false);
+                }
             }
+            other => sh.act(*other),
         }
-        let applied = sh.motor_line.applied();
-        pr_warn!(
-            "fail-safe ({}): step {}/{}: {} (servo {}, gate {}, supply {}, applied torque {})\n",
-            cause.name(),
-            i.saturating_add(1),
-            FAIL_SAFE_SEQUENCE.len(),
-            action.name(),
-            if sh.cycle.servo_working() {
-                "in cycle"
-            } else {
-                "waiting"
-            },
-            sh.motor_line.gate().name(),
-            u8::from(sh.motor_line.supply_on()),
-            if applied.iter().all(|t| t.0 == 0) {
-                "0"
-            } else {
-                "non-zero"
-            }
-        );
+        for arm in sh.arms() {
+            let line = &arm.io.motor_line;
+            let applied = line.applied();
+            pr_warn!(
+                "fail-safe ({}): step {}/{}: {} ({}servo {}, gate {}, supply {}, applied torque {})\n",
+                cause.name(),
+                i.saturating_add(1),
+                FAIL_SAFE_SEQUENCE.len(),
+                action.name(),
+                arm_label(sh, arm),
+                if hs.servo_working() {
+                    "in cycle"
+                } else {
+                    "waiting"
+                },
+                line.gate().name(),
+                u8::from(line.supply_on()),
+                if applied.iter().all(|t| t.0 == 0) {
+                    "0"
+                } else {
+                    "non-zero"
+                }
+            );
+        }
     }
     pr_warn!(
         "fail-safe ({}): done, tasks stopped; rmmod to unload\n",
@@ -270,20 +267,47 @@ pub(crate) fn fail_safe(sh: &Shared, cause: FailSafeCause) {
     );
 }
 
-/// `/dev/hap_stop`: any write requests the application's termination.
-pub(crate) struct Stop;
-
-impl HapDevice for Stop {
-    const NAME: &'static CStr = c"hap_stop";
-
-    fn open(_sh: &Arc<Shared>) -> Result<Self> {
-        Ok(Stop)
+/// `arm N, ` in a dmesg line of a controller of several arms (one arm's
+/// lines read as they always have).
+fn arm_label(sh: &Controller, arm: &Arm) -> &'static str {
+    match (sh.arm_count(), arm.index) {
+        (1, _) => "",
+        (_, 0) => "arm 0, ",
+        _ => "arm 1, ",
     }
+}
 
-    fn write(f: &OpenFile<Self>, iov: &mut IovIterSource<'_>) -> Result<usize> {
-        let n = iov.len();
-        iov.advance(n);
-        f.shared.stop_request.store(true, Release);
-        Ok(n)
+/// Log fail-safe step `step` (1-based, `FAIL_SAFE_SEQUENCE` order) as it
+/// starts: the servo's last record with mode `FailSafe`, the arm status
+/// now, and the tick. If SERVO holds `mtx_data` (a hung or overrunning
+/// cycle), its state is unknown: an empty record flagged `POSE_UNKNOWN`,
+/// which the analysis does not read as a pose.
+fn log_fail_safe_step(sh: &Controller, arm: &Arm, step: u8) {
+    let mut rec = match arm.servo.data.try_lock() {
+        Some(d) => *d.cycle.servo.log_record(),
+        None => LogRecord {
+            flags: log_flags::POSE_UNKNOWN,
+            ..LogRecord::ZERO
+        },
+    };
+    rec.mode = LogMode::FailSafe;
+    rec.fail_safe_step = step;
+    // What the motors apply now, read from the line (not SERVO's last record).
+    let line = &arm.io.motor_line;
+    rec.motor_torque = line.applied();
+    if line.gate() == Gate::FailSafe {
+        rec.flags |= log_flags::LINE_CUT;
     }
+    rec.status = arm.io.arm_status();
+    rec.alarms |= alarm::FAIL_SAFE;
+    rec.timing = LogTiming {
+        tick: sh.clock.handshake.tick(),
+        start_ns: u64::try_from(sh.time.now_ns()).unwrap_or(0),
+        wakeup_ns: 0,
+        exec_ns: 0,
+        session: 0,
+    };
+    // SERVO may be mid-push (CLOCK preempted it): the record is refused and
+    // counted rather than waited for, since the next step cuts the motors.
+    arm.log.push(&rec);
 }

@@ -2,9 +2,29 @@
 
 //! A counting completion (`struct completion`) with the operations the
 //! kernel crate's `Completion` lacks in 7.3: `complete()` one waiter from any
-//! context (hard IRQ included) and a timed wait.
+//! context (hard IRQ included) and a timed wait whose time-out is a
+//! duration ([`Timeout`], converted to jiffies at the call into C).
 
 use kernel::{bindings, prelude::*, types::Opaque};
+
+/// How long a wait may last: whole milliseconds, converted to jiffies by
+/// the kernel's `msecs_to_jiffies` (rounded up: on HZ=250 one jiffy is
+/// 4 ms, so 1 ms waits one jiffy).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Timeout {
+    ms: u32,
+}
+
+impl Timeout {
+    pub(crate) const fn from_millis(ms: u32) -> Self {
+        Timeout { ms }
+    }
+
+    /// The time-out in jiffies, for the C wait functions.
+    pub(crate) fn jiffies(self) -> kernel::time::Jiffies {
+        kernel::time::msecs_to_jiffies(self.ms)
+    }
+}
 
 /// Outcome of [`Completion::wait_timeout`].
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -47,10 +67,11 @@ impl Completion {
         unsafe { bindings::complete_all(self.inner.get()) };
     }
 
-    /// Sleep (uninterruptibly) until completed or `jiffies` elapsed.
-    pub(crate) fn wait_timeout(&self, jiffies: c_ulong) -> Wait {
+    /// Sleep (uninterruptibly) until completed or `timeout` elapsed.
+    pub(crate) fn wait_timeout(&self, timeout: Timeout) -> Wait {
         // SAFETY: `inner` is an initialised completion; we may sleep here.
-        let left = unsafe { bindings::wait_for_completion_timeout(self.inner.get(), jiffies) };
+        let left =
+            unsafe { bindings::wait_for_completion_timeout(self.inner.get(), timeout.jiffies()) };
         if left == 0 {
             Wait::TimedOut
         } else {

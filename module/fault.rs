@@ -9,15 +9,49 @@
 //!
 //! Anything else is `EINVAL`.
 
-use crate::{
-    device::{HapDevice, OpenFile},
-    shared::Shared,
-};
-use kernel::{
-    iov::IovIterSource,
-    prelude::*,
-    sync::{atomic::Release, Arc},
-};
+use crate::device::{HapDevice, OpenFile};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use kernel::{iov::IovIterSource, prelude::*, sync::Arc};
+
+/// The faults asked for, for SERVO to act out.
+///
+/// Protocol: /dev/hap_fault stores (Release); SERVO reads them (Acquire) at
+/// the top of each cycle, inside `mtx_data`, and is the only one to count
+/// `overruns` down.
+pub(crate) struct FaultInjection {
+    /// SERVO overruns this many more cycles, inside `mtx_data`.
+    overruns: AtomicU32,
+    /// SERVO hangs inside its cycle, holding `mtx_data`, until rmmod.
+    hang: AtomicBool,
+}
+
+impl FaultInjection {
+    pub(crate) const fn new() -> Self {
+        FaultInjection {
+            overruns: AtomicU32::new(0),
+            hang: AtomicBool::new(false),
+        }
+    }
+
+    pub(crate) fn hang_requested(&self) -> bool {
+        self.hang.load(Ordering::Acquire)
+    }
+
+    /// SERVO: take one pending overrun, if any.
+    pub(crate) fn take_overrun(&self) -> bool {
+        let left = self.overruns.load(Ordering::Acquire);
+        if left == 0 {
+            return false;
+        }
+        self.overruns
+            .store(left.saturating_sub(1), Ordering::Release);
+        true
+    }
+
+    pub(crate) fn overruns_pending(&self) -> u32 {
+        self.overruns.load(Ordering::Relaxed)
+    }
+}
 
 /// `/dev/hap_fault`.
 pub(crate) struct FaultDevice;
@@ -55,9 +89,11 @@ fn parse_overrun(b: &[u8]) -> Option<u32> {
 }
 
 impl HapDevice for FaultDevice {
-    const NAME: &'static CStr = c"hap_fault";
+    const NAMES: &'static [&'static CStr] = &[c"hap_fault"];
 
-    fn open(_sh: &Arc<Shared>) -> Result<Self> {
+    type Part = FaultInjection;
+
+    fn open(_faults: &Arc<FaultInjection>) -> Result<Self> {
         Ok(FaultDevice)
     }
 
@@ -66,17 +102,17 @@ impl HapDevice for FaultDevice {
         let len = iov.len();
         let dst = buf.get_mut(..len).filter(|d| !d.is_empty()).ok_or(EINVAL)?;
         let n = iov.copy_from_iter(dst);
-        let sh = &f.shared;
+        let faults = &f.part;
         match parse_fault(buf.get(..n).unwrap_or(&[])).ok_or(EINVAL)? {
             Fault::Overrun(count) => {
-                sh.fault_overruns.store(count, Release);
+                faults.overruns.store(count, Ordering::Release);
                 pr_info!(
                     "fault injection: SERVO overruns the next {} cycles inside its cycle\n",
                     count
                 );
             }
             Fault::Hang => {
-                sh.fault_hang.store(true, Release);
+                faults.hang.store(true, Ordering::Release);
                 pr_info!("fault injection: SERVO hangs inside its next cycle\n");
             }
         }

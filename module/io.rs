@@ -2,8 +2,8 @@
 
 //! hap_io's kernel side: the arm's power-on request line (the spec's
 //! footnote 3: "a dedicated RT-FIFO, an associated handler and a global
-//! flag"). Motor commands stay inhibited (in hap-core's `Io`) until a
-//! power-on request; the fail-safe inhibits them for good.
+//! flag"). Motor commands stay inhibited (hap-core's `MotorLine` gate)
+//! until a power-on request; the fail-safe inhibits them for good.
 //!
 //! `/dev/hap_power`: write `1` (power on) or `0` (power off), optionally
 //! followed by a newline; anything else is `EINVAL`. Reading gives the arm's
@@ -14,28 +14,79 @@
 
 use crate::{
     device::{HapDevice, OpenFile},
-    hap_core::{fixed::Joints, io::Gate, servo::PowerRequest, vp::status},
-    shared::Shared,
+    hap_core::{fixed::Joints, io::Gate, io::MotorLine, servo::PowerRequest, vp::status},
 };
-use core::fmt::Write;
+use core::{
+    fmt::Write,
+    sync::atomic::{AtomicU32, AtomicU8, Ordering},
+};
 use kernel::{
     iov::{IovIterDest, IovIterSource},
     prelude::*,
-    sync::{atomic::Acquire, Arc},
+    sync::Arc,
 };
 
-/// The arm's status bits as the hardware lines show them: SERVO's last
-/// answer, with the power and motor bits read from the motor line now (the
-/// fail-safe cuts the line whatever SERVO does).
-pub(crate) fn arm_status(sh: &Shared) -> u32 {
-    let mut st = sh.last_status.load(Acquire) & !(status::POWER_ON | status::MOTORS_ENABLED);
-    if sh.motor_line.supply_on() {
-        st |= status::POWER_ON;
+/// The arm's lines: hap_io's motor line (gate, supply, the DAC's command),
+/// the power request for SERVO, and the status bits of SERVO's last answer.
+///
+/// Protocol:
+/// - `motor_line` (hap-core's `MotorLine`, its own orderings): SERVO writes
+///   commands, the simulated motors read it at every sub-step, the
+///   fail-safe and rmmod cut it with two stores; outside every lock.
+/// - `power_request` (`PowerRequest` as its `u8`): stored (Release) by
+///   /dev/hap_power and by PROTO_IN (the client's request); SERVO swaps it
+///   back to `None` (AcqRel) at the top of its cycle. The last request
+///   before SERVO's swap wins.
+/// - `last_status`: SERVO stores (Release) each cycle's answer status; the
+///   devices read it (Acquire), with the power and motor bits replaced by
+///   what the motor line shows now.
+pub(crate) struct ArmIo {
+    pub(crate) motor_line: MotorLine,
+    power_request: AtomicU8,
+    last_status: AtomicU32,
+}
+
+impl ArmIo {
+    pub(crate) const fn new() -> Self {
+        ArmIo {
+            motor_line: MotorLine::new(),
+            power_request: AtomicU8::new(PowerRequest::None.as_u8()),
+            last_status: AtomicU32::new(0),
+        }
     }
-    if sh.motor_line.motors_enabled() {
-        st |= status::MOTORS_ENABLED;
+
+    /// A power request (from /dev/hap_power or the client), for SERVO.
+    pub(crate) fn request_power(&self, r: PowerRequest) {
+        self.power_request.store(r.as_u8(), Ordering::Release);
     }
-    st
+
+    /// SERVO: take the pending power request, if any.
+    pub(crate) fn take_power_request(&self) -> PowerRequest {
+        PowerRequest::from_u8(
+            self.power_request
+                .swap(PowerRequest::None.as_u8(), Ordering::AcqRel),
+        )
+    }
+
+    /// SERVO: the status bits of this cycle's answer.
+    pub(crate) fn set_last_status(&self, st: u32) {
+        self.last_status.store(st, Ordering::Release);
+    }
+
+    /// The arm's status bits as the hardware lines show them: SERVO's last
+    /// answer, with the power and motor bits read from the motor line now
+    /// (the fail-safe cuts the line whatever SERVO does).
+    pub(crate) fn arm_status(&self) -> u32 {
+        let mut st =
+            self.last_status.load(Ordering::Acquire) & !(status::POWER_ON | status::MOTORS_ENABLED);
+        if self.motor_line.supply_on() {
+            st |= status::POWER_ON;
+        }
+        if self.motor_line.motors_enabled() {
+            st |= status::MOTORS_ENABLED;
+        }
+        st
+    }
 }
 
 /// Joint torques as whole µN·m, comma-separated.
@@ -51,9 +102,11 @@ fn write_torques(w: &mut impl Write, tau: &Joints) -> core::fmt::Result {
 pub(crate) struct Power;
 
 impl HapDevice for Power {
-    const NAME: &'static CStr = c"hap_power";
+    const NAMES: &'static [&'static CStr] = &[c"hap_power", c"hap1_power"];
 
-    fn open(_sh: &Arc<Shared>) -> Result<Self> {
+    type Part = ArmIo;
+
+    fn open(_io: &Arc<ArmIo>) -> Result<Self> {
         Ok(Power)
     }
 
@@ -67,16 +120,16 @@ impl HapDevice for Power {
             Some(b"0") | Some(b"0\n") => PowerRequest::Off,
             _ => return Err(EINVAL),
         };
-        f.shared.request_power(req);
+        f.part.request_power(req);
         Ok(n)
     }
 
     fn read(f: &OpenFile<Self>, pos: &mut i64, iov: &mut IovIterDest<'_>) -> Result<usize> {
-        let sh = &f.shared;
-        let st = arm_status(sh);
-        let line = &sh.motor_line;
+        let io = &f.part;
+        let st = io.arm_status();
+        let line = &io.motor_line;
         let gate = line.gate();
-        let mut text = crate::stats::TextBuf::<256>::new();
+        let mut text = crate::uaccess::TextBuf::<256>::new();
         let _ = write!(
             text,
             "power={} motors={} inhibited={} gate={} command=",

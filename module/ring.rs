@@ -7,22 +7,39 @@
 //! position log), end of file, and waking blocked readers.
 //!
 //! Sides:
-//! - the **producer** is one task (SERVO for rtf_out's answers and the
-//!   position log, PROTO_IN for rtf_out's replies lane), or several writers
-//!   serialised among themselves by `producers`, a lock the consumer never
-//!   takes (rtf_in, the effort handoff);
-//! - the **consumer** is one task (PROTO_IN for rtf_in, SERVO for the
-//!   effort handoff), or the readers of a device, serialised among
-//!   themselves by `consumers`, a lock the producer never takes.
+//! - the **producer** is one task holding the ring's [`Producer`] token
+//!   (SERVO for rtf_out's answers, PROTO_IN for rtf_out's replies lane), or
+//!   several writers serialised among themselves by `producers`, a lock the
+//!   consumer never takes (rtf_in, the effort hand-off), or two real-time
+//!   tasks that never wait for each other ([`Fifo::try_push_exclusive`]:
+//!   the position log);
+//! - the **consumer** is one task holding the ring's [`Consumer`] token
+//!   (PROTO_IN for rtf_in, SERVO for the effort hand-off), or the readers
+//!   of a device, serialised among themselves by `consumers`, a lock the
+//!   producer never takes.
+//!
+//! A token is claimed once ([`Fifo::claim_producer`],
+//! [`Fifo::claim_consumer`]; a second claim while one is held gets `None`),
+//! is not `Send` (it stays in the task that claimed it) and gives the
+//! side back when dropped. Each ring is used with one kind of producer
+//! side and one kind of consumer side.
 //!
 //! A push never waits: it succeeds or is refused (full ring, counted).
 //! It then rings the `readable` doorbell only if a reader sleeps: a
 //! `struct completion` (a raw spinlock held for a bounded wake-up, also on
 //! PREEMPT_RT), never a lock a reader can hold while preempted.
 
-use crate::hap_core::spsc::{self, PushError, Spsc};
+use crate::{
+    completion::Timeout,
+    hap_core::spsc::{self, PushError, Spsc},
+};
 use core::sync::atomic::{fence, AtomicBool, AtomicU32, Ordering};
-use kernel::{bindings, new_mutex, prelude::*, sync::Mutex, types::Opaque};
+use kernel::{
+    bindings, new_mutex,
+    prelude::*,
+    sync::Mutex,
+    types::{NotThreadSafe, Opaque},
+};
 
 pub(crate) use core::sync::atomic::AtomicU64;
 
@@ -59,11 +76,11 @@ impl Doorbell {
         unsafe { bindings::complete_all(self.inner.get()) };
     }
 
-    /// Sleep until rung, a signal (`ERESTARTSYS`) or `jiffies` elapsed.
-    pub(crate) fn wait_interruptible(&self, jiffies: c_ulong) -> Result {
+    /// Sleep until rung, a signal (`ERESTARTSYS`) or `timeout` elapsed.
+    pub(crate) fn wait_interruptible(&self, timeout: Timeout) -> Result {
         // SAFETY: `inner` is an initialised completion; readers may sleep.
         let r = unsafe {
-            bindings::wait_for_completion_interruptible_timeout(self.inner.get(), jiffies)
+            bindings::wait_for_completion_interruptible_timeout(self.inner.get(), timeout.jiffies())
         };
         if r < 0 {
             Err(ERESTARTSYS)
@@ -72,6 +89,9 @@ impl Doorbell {
         }
     }
 }
+
+/// A sleeping reader re-checks the ring at least this often.
+const READER_WAIT: Timeout = Timeout::from_millis(100);
 
 /// Allocate `words` zeroed atomic words (vmalloc-backed when large), in one
 /// allocation.
@@ -82,6 +102,22 @@ pub(crate) fn storage(words: usize) -> Result<KVVec<AtomicU64>> {
             .map_err(|_| ENOMEM)?;
     }
     Ok(v)
+}
+
+/// A fixed array of atomic words (small publications, built inline).
+pub(crate) struct Words<const N: usize>([AtomicU64; N]);
+
+impl<const N: usize> Words<N> {
+    pub(crate) const fn new() -> Self {
+        Words([const { AtomicU64::new(0) }; N])
+    }
+}
+
+impl<const N: usize> core::ops::Deref for Words<N> {
+    type Target = [AtomicU64];
+    fn deref(&self) -> &[AtomicU64] {
+        &self.0
+    }
 }
 
 /// A ring of records of at most `REC` bytes with its doorbell and end of file.
@@ -108,6 +144,50 @@ pub(crate) struct Fifo<const REC: usize> {
     pushing: AtomicBool,
     /// Records refused because the other producer was pushing.
     busy_refused: AtomicU64,
+    /// A [`Producer`] / [`Consumer`] token is held.
+    producer_claimed: AtomicBool,
+    consumer_claimed: AtomicBool,
+}
+
+/// The single producer's side of a [`Fifo`], held by its task.
+pub(crate) struct Producer<'a, const REC: usize> {
+    fifo: &'a Fifo<REC>,
+    _not_send: NotThreadSafe,
+}
+
+/// The single consumer's side of a [`Fifo`], held by its task.
+pub(crate) struct Consumer<'a, const REC: usize> {
+    fifo: &'a Fifo<REC>,
+    _not_send: NotThreadSafe,
+}
+
+assert_not_send!(Producer<'static, 1>);
+assert_not_send!(Consumer<'static, 1>);
+
+impl<const REC: usize> Producer<'_, REC> {
+    /// Push one record: never waits; refused when full or closed.
+    pub(crate) fn push(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
+        self.fifo.push_one(rec)
+    }
+}
+
+impl<const REC: usize> Drop for Producer<'_, REC> {
+    fn drop(&mut self) {
+        self.fifo.producer_claimed.store(false, Ordering::Release);
+    }
+}
+
+impl<const REC: usize> Consumer<'_, REC> {
+    /// Pop the oldest record: never waits.
+    pub(crate) fn pop(&self, out: &mut [u8; REC]) -> Option<usize> {
+        self.fifo.pop_one(out)
+    }
+}
+
+impl<const REC: usize> Drop for Consumer<'_, REC> {
+    fn drop(&mut self) {
+        self.fifo.consumer_claimed.store(false, Ordering::Release);
+    }
 }
 
 /// Why a push was refused.
@@ -130,11 +210,35 @@ impl<const REC: usize> Fifo<REC> {
             discarded: AtomicBool::new(false),
             pushing: AtomicBool::new(false),
             busy_refused: AtomicU64::new(0),
+            producer_claimed: AtomicBool::new(false),
+            consumer_claimed: AtomicBool::new(false),
         }))
     }
 
-    /// The single producer's push (SERVO's, PROTO_IN's): never waits.
-    pub(crate) fn push(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
+    /// The single producer's side, if nobody holds it.
+    pub(crate) fn claim_producer(&self) -> Option<Producer<'_, REC>> {
+        self.producer_claimed
+            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .ok()?;
+        Some(Producer {
+            fifo: self,
+            _not_send: NotThreadSafe,
+        })
+    }
+
+    /// The single consumer's side, if nobody holds it.
+    pub(crate) fn claim_consumer(&self) -> Option<Consumer<'_, REC>> {
+        self.consumer_claimed
+            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .ok()?;
+        Some(Consumer {
+            fifo: self,
+            _not_send: NotThreadSafe,
+        })
+    }
+
+    /// One push, by whichever producer side holds the right to it.
+    fn push_one(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
         if self.closed.load(Ordering::Acquire) {
             return Err(Refused::Closed);
         }
@@ -160,7 +264,7 @@ impl<const REC: usize> Fifo<REC> {
             self.busy_refused.fetch_add(1, Ordering::Relaxed);
             return Err(Refused::Full);
         }
-        let r = self.push(rec);
+        let r = self.push_one(rec);
         self.pushing.store(false, Ordering::Release);
         r
     }
@@ -180,11 +284,11 @@ impl<const REC: usize> Fifo<REC> {
     /// among themselves on `producers`, which the consumer never takes.
     pub(crate) fn push_serialised(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
         let _g = self.producers.lock();
-        self.push(rec)
+        self.push_one(rec)
     }
 
-    /// The single consumer's pop (PROTO_IN's, SERVO's): never waits.
-    pub(crate) fn pop(&self, out: &mut [u8; REC]) -> Option<usize> {
+    /// One pop, by whichever consumer side holds the right to it.
+    fn pop_one(&self, out: &mut [u8; REC]) -> Option<usize> {
         if self.discarded.load(Ordering::Acquire) {
             return None;
         }
@@ -194,7 +298,7 @@ impl<const REC: usize> Fifo<REC> {
     /// A pop from one of several readers, without waiting.
     pub(crate) fn pop_serialised(&self, out: &mut [u8; REC]) -> Option<usize> {
         let _g = self.consumers.lock();
-        self.pop(out)
+        self.pop_one(out)
     }
 
     /// A reader's pop: the oldest record, waiting for one unless `nonblock`.
@@ -214,7 +318,9 @@ impl<const REC: usize> Fifo<REC> {
     ) -> Result<usize> {
         let take = |out: &mut [u8; REC]| {
             let _g = self.consumers.lock();
-            first.and_then(|f| f.pop(out)).or_else(|| self.pop(out))
+            first
+                .and_then(|f| f.pop_one(out))
+                .or_else(|| self.pop_one(out))
         };
         loop {
             if let Some(n) = take(out) {
@@ -231,8 +337,8 @@ impl<const REC: usize> Fifo<REC> {
             fence(Ordering::SeqCst);
             let empty = self.ring.is_empty() && first.is_none_or(|f| f.ring.is_empty());
             let r = if empty && !self.closed.load(Ordering::Acquire) {
-                // The timeout only bounds a stale wake-up count's effect.
-                self.readable.wait_interruptible(100)
+                // The time-out only bounds a stale wake-up count's effect.
+                self.readable.wait_interruptible(READER_WAIT)
             } else {
                 Ok(())
             };
@@ -251,6 +357,11 @@ impl<const REC: usize> Fifo<REC> {
         }
         self.closed.store(true, Ordering::Release);
         self.readable.ring_all();
+    }
+
+    /// Closed (no more pushes).
+    pub(crate) fn is_closed(&self) -> bool {
+        self.closed.load(Ordering::Acquire)
     }
 
     /// (records queued now, records pushed, records refused: full ring or,

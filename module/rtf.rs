@@ -17,10 +17,10 @@
 //!   `answers_dropped`).
 
 use crate::{
+    completion::Completion,
     device::{HapDevice, OpenFile},
     hap_core::protocol,
-    ring::Refused,
-    shared::Shared,
+    ring::{Fifo, Refused},
 };
 use kernel::{
     iov::{IovIterDest, IovIterSource},
@@ -51,18 +51,88 @@ impl RtfInCounters {
     }
 }
 
+/// The RT-FIFO pair between the bridge and the kernel tasks, and what is
+/// counted on its way.
+///
+/// Protocol:
+/// - `rtf_in`: producers are the device's writers, serialised among
+///   themselves (`Fifo::push_serialised`); the consumer is PROTO_IN. Each
+///   accepted frame posts `rtf_in_ready` (the spec's `sem_rtf_in`), which
+///   only PROTO_IN waits on.
+/// - `rtf_out`: SERVO's answers, SERVO the only producer; `rtf_replies`:
+///   PROTO_IN's replies, PROTO_IN the only producer, who then rings
+///   rtf_out's doorbell. The readers of /dev/hap_rtf_out are the consumers
+///   of both, serialised among themselves.
+/// - The counters are statistics (Relaxed): `answer_seq` numbers the frames
+///   SERVO and PROTO_IN send (one sequence for both, as on the wire);
+///   `answers_sent` and `answers_skipped_latch_busy` are SERVO's;
+///   `answers_dropped` counts the frames a full lane refused, SERVO's and
+///   PROTO_IN's.
+#[pin_data]
+pub(crate) struct RtfPair {
+    #[pin]
+    pub(crate) rtf_in: Fifo<MAX_FRAME_LEN>,
+    #[pin]
+    pub(crate) rtf_in_ready: Completion,
+    #[pin]
+    pub(crate) rtf_out: Fifo<MAX_FRAME_LEN>,
+    #[pin]
+    pub(crate) rtf_replies: Fifo<MAX_FRAME_LEN>,
+    pub(crate) rtf_in_counters: RtfInCounters,
+    answer_seq: Atomic<u32>,
+    pub(crate) answers_sent: Atomic<u64>,
+    /// Cycles whose answers SERVO skipped: its read of the VPr latch's
+    /// session overlapped PROTO_IN's publication on every attempt.
+    pub(crate) answers_skipped_latch_busy: Atomic<u64>,
+    pub(crate) answers_dropped: Atomic<u64>,
+}
+
+impl RtfPair {
+    pub(crate) fn new() -> Result<impl PinInit<Self, Error>> {
+        let rtf_in = Fifo::new(RTF_FRAMES)?;
+        let rtf_out = Fifo::new(RTF_FRAMES)?;
+        let rtf_replies = Fifo::new(RTF_FRAMES)?;
+        Ok(try_pin_init!(Self {
+            rtf_in <- rtf_in,
+            rtf_in_ready <- Completion::new(),
+            rtf_out <- rtf_out,
+            rtf_replies <- rtf_replies,
+            rtf_in_counters: RtfInCounters::new(),
+            answer_seq: Atomic::new(0),
+            answers_sent: Atomic::new(0),
+            answers_skipped_latch_busy: Atomic::new(0),
+            answers_dropped: Atomic::new(0),
+        }? Error))
+    }
+
+    /// The next sequence number of a frame the controller sends.
+    pub(crate) fn next_seq(&self) -> u32 {
+        self.answer_seq.fetch_add(1, Relaxed).wrapping_add(1)
+    }
+
+    /// Close the pair (the fail-safe's `CloseProtocol`, rmmod): readers and
+    /// writers see end of file at once, what is queued is dropped.
+    pub(crate) fn close(&self) {
+        self.rtf_out.close(true);
+        self.rtf_replies.close(true);
+        self.rtf_in.close(true);
+    }
+}
+
 /// `/dev/hap_rtf_in`.
 pub(crate) struct RtfIn;
 
 impl HapDevice for RtfIn {
-    const NAME: &'static CStr = c"hap_rtf_in";
+    const NAMES: &'static [&'static CStr] = &[c"hap_rtf_in", c"hap1_rtf_in"];
 
-    fn open(_sh: &Arc<Shared>) -> Result<Self> {
+    type Part = RtfPair;
+
+    fn open(_rtf: &Arc<RtfPair>) -> Result<Self> {
         Ok(RtfIn)
     }
 
     fn write(f: &OpenFile<Self>, iov: &mut IovIterSource<'_>) -> Result<usize> {
-        let sh = &f.shared;
+        let sh = &f.part;
         let len = iov.len();
         let mut frame = [0u8; MAX_FRAME_LEN];
         if !(protocol::MIN_FRAME_LEN..=MAX_FRAME_LEN).contains(&len) {
@@ -100,9 +170,11 @@ impl HapDevice for RtfIn {
 pub(crate) struct RtfOut;
 
 impl HapDevice for RtfOut {
-    const NAME: &'static CStr = c"hap_rtf_out";
+    const NAMES: &'static [&'static CStr] = &[c"hap_rtf_out", c"hap1_rtf_out"];
 
-    fn open(_sh: &Arc<Shared>) -> Result<Self> {
+    type Part = RtfPair;
+
+    fn open(_rtf: &Arc<RtfPair>) -> Result<Self> {
         Ok(RtfOut)
     }
 
@@ -110,7 +182,7 @@ impl HapDevice for RtfOut {
         if iov.len() < MAX_FRAME_LEN {
             return Err(EINVAL);
         }
-        let sh = &f.shared;
+        let sh = &f.part;
         let mut frame = [0u8; MAX_FRAME_LEN];
         let n = sh
             .rtf_out

@@ -2,9 +2,9 @@
 
 //! SERVO (the spec's hap_servo): waits at the cycle barrier, then runs one
 //! servo cycle under `mtx_data`: takes the effort commands handed over since
-//! its last cycle, then hap-core's `ServoCycle::run` (get_measures →
-//! logical/physical state → cartesian_control → send_commands →
-//! simulate_arm) between the synchronizer's `receive_vp` and `send_vp`; after
+//! its last cycle, then the cycle itself (`servo_cycle.rs`: hap-core's
+//! `ServoCycle::run` between the synchronizer's `receive_vp` and
+//! `send_vp`); after
 //! `mtx_data` is released it logs the simulator's position with the cycle's
 //! timing. The main and the auxiliary (degraded) path
 //! are the same code (spec §3.5); CLOCK's supervisor picks the mode through
@@ -20,130 +20,137 @@
 //! preempted cannot delay SERVO; SERVO rings their doorbells (a completion:
 //! a raw spinlock held for a bounded wake-up) only when a reader sleeps. No
 //! allocation and no printk inside the cycle. Motor commands go through
-//! hap_io's motor line (`Shared::motor_line`), which is outside every lock:
+//! hap_io's motor line (`ArmIo::motor_line`), which is outside every lock:
 //! the fail-safe cuts it whatever SERVO is doing.
 
 use crate::{
-    completion::Wait,
+    arm::{Arm, MAX_ARMS},
+    completion::{Timeout, Wait},
+    controller::Controller,
+    effort::EffortTaker,
     hap_core::{
-        clock::Mode,
-        servo::{PowerRequest, ServoInputs, ServoMode},
-        simulator::{LogRecord, LogTiming},
+        mode::ServoMode,
+        position_log::{LogRecord, LogTiming},
+        protocol::MAX_FRAME_LEN,
     },
     kthread::CurrentKThread,
-    proto_synchro,
-    shared::{ServoData, Shared},
-    simulator::take_effort,
+    ring::Producer,
+    servo_cycle,
 };
-use kernel::sync::atomic::{Acquire, Relaxed, Release};
+use kernel::prelude::*;
 
-/// SERVO's thread body.
-pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Shared) {
-    // The protocol session, for the log (kept when the latch is being written).
-    let mut session = 0u16;
-    while !kt.should_stop() && !sh.is_stopping() {
-        sh.cycle.set_servo_waiting(true);
-        let w = sh.cycle_start.wait_timeout(100);
-        sh.cycle.set_servo_waiting(false);
-        if sh.is_stopping() {
+/// SERVO wakes at least this often at the barrier to check for a stop.
+const BARRIER_WAIT: Timeout = Timeout::from_millis(100);
+
+/// SERVO's sides of one arm's rings, held for SERVO's lifetime, and the
+/// arm's protocol session for its log (kept while the latch is being
+/// written).
+struct ArmSides<'a> {
+    arm: &'a Arm,
+    answers: Producer<'a, MAX_FRAME_LEN>,
+    effort: EffortTaker<'a>,
+    session: u16,
+}
+
+/// SERVO's thread body: one cycle steps every arm, arm 0 first.
+pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Controller) {
+    let clock = &sh.clock;
+    let hs = &clock.handshake;
+    let mut sides: [Option<ArmSides<'_>>; MAX_ARMS] = [const { None }; MAX_ARMS];
+    for (slot, arm) in sides.iter_mut().zip(sh.arms()) {
+        let (Some(answers), Some(effort)) =
+            (arm.rtf.rtf_out.claim_producer(), arm.effort.claim_taker())
+        else {
+            pr_err!("SERVO: arm {}'s FIFO sides are already held\n", arm.index);
+            return;
+        };
+        *slot = Some(ArmSides {
+            arm,
+            answers,
+            effort,
+            session: 0,
+        });
+    }
+    let mut recs = [LogRecord::ZERO; MAX_ARMS];
+    'cycles: while !kt.should_stop() && !sh.life.is_stopping() {
+        hs.set_servo_waiting(true);
+        let w = clock.cycle_start.wait_timeout(BARRIER_WAIT);
+        hs.set_servo_waiting(false);
+        if sh.life.is_stopping() {
             break;
         }
         if w == Wait::TimedOut {
             continue;
         }
         // The spec's servo_working = TRUE.
-        let start = sh.cycle.servo_begin();
-        let mode = match start.mode {
-            Mode::Normal => ServoMode::Main,
-            Mode::Degraded => ServoMode::Degraded,
-            Mode::FailSafe => {
-                sh.cycle.servo_leave();
-                break;
-            }
-        };
-        let start_ns = sh.now_ns();
-        let expiry_ns = sh.expiry_ns.load(Acquire);
-        sh.servo_start_ns.store(start_ns, Release);
-
-        let mut data = sh.data.lock();
-        if inject_fault(kt, sh) == Injected::Hung {
-            // The hung SERVO is released only by rmmod: it never finishes.
+        let start = hs.servo_begin();
+        let Some(mode) = ServoMode::of(start.mode) else {
+            // Fail-safe: SERVO runs nothing and leaves.
+            hs.servo_leave();
             break;
-        }
-        take_effort(sh, &mut data);
-        servo_cycle(sh, &mut data, mode);
-        let mut rec = *data.cycle.servo.log_record();
-        drop(data);
-
-        if let Some((s, _)) = sh.latest_vpr() {
-            session = s;
-        }
-        let end_ns = sh.now_ns();
-        sh.servo_end_ns.store(end_ns, Release);
-        // The position log, with this cycle's timing (pushed after the
-        // cycle so that the execution time includes everything SERVO did).
-        rec.timing = LogTiming {
-            tick: start.tick,
-            start_ns: u64::try_from(start_ns).unwrap_or(0),
-            wakeup_ns: ns_u32(start_ns.saturating_sub(expiry_ns)),
-            exec_ns: ns_u32(end_ns.saturating_sub(start_ns)),
-            session,
         };
-        push_log(sh, &rec);
-        sh.cycle.servo_end(start.tick);
+        let start_ns = sh.time.now_ns();
+        let expiry_ns = clock.expiry_ns();
+        clock.stamp_servo_start(start_ns);
+
+        for (s, rec) in sides.iter().flatten().zip(recs.iter_mut()) {
+            let mut data = s.arm.servo.data.lock();
+            // Faults are acted out inside the first arm's `mtx_data`.
+            if s.arm.index == 0 && inject_fault(kt, sh) == Injected::Hung {
+                // The hung SERVO is released only by rmmod: it never finishes.
+                break 'cycles;
+            }
+            s.effort.take(&mut data);
+            servo_cycle::run(sh, s.arm, &s.answers, &mut data, mode);
+            *rec = *data.cycle.servo.log_record();
+            drop(data);
+        }
+
+        for s in sides.iter_mut().flatten() {
+            if let Some((session, _)) = s.arm.proto.latest_vpr() {
+                s.session = session;
+            }
+        }
+        let end_ns = sh.time.now_ns();
+        clock.stamp_servo_end(end_ns);
+        // Each arm's position log, with this cycle's timing (pushed after
+        // the cycle so that the execution time includes everything SERVO
+        // did).
+        for (s, rec) in sides.iter().flatten().zip(recs.iter_mut()) {
+            rec.timing = LogTiming {
+                tick: start.tick,
+                start_ns: u64::try_from(start_ns).unwrap_or(0),
+                wakeup_ns: ns_u32(start_ns.saturating_sub(expiry_ns)),
+                exec_ns: ns_u32(end_ns.saturating_sub(start_ns)),
+                session: s.session,
+            };
+            s.arm.log.push(rec);
+        }
+        hs.servo_end(start.tick);
     }
 }
 
 /// The initial calibration (spec §3.2), at insmod before the tasks start:
-/// one servo cycle with the arm at rest and no client. It takes every lock
+/// one servo cycle of each arm at rest and no client. It takes every lock
 /// of the cycle once, so first-use costs (lockdep registering its classes on
 /// the debug kernel: milliseconds) are not paid inside the first real-time
 /// cycle. Its inputs are those of every cycle before a client or a user acts,
 /// so the host replay starts from the same state.
-pub(crate) fn calibrate(sh: &Shared) {
-    let mut data = sh.data.lock();
-    servo_cycle(sh, &mut data, ServoMode::Main);
-    let rec = *data.cycle.servo.log_record();
-    drop(data);
-    push_log(sh, &rec);
-}
-
-/// Append one record to the position log: refused (counted in
-/// `simlog.dropped`) when the log is full or CLOCK's fail-safe is pushing
-/// its step record at that moment; never waits.
-pub(crate) fn push_log(sh: &Shared, rec: &LogRecord) {
-    let mut buf = [0u8; LogRecord::SIZE];
-    rec.encode(&mut buf);
-    let _ = sh.simlog.try_push_exclusive(&buf);
+pub(crate) fn calibrate(sh: &Controller) -> Result {
+    for arm in sh.arms() {
+        // SERVO's side of rtf_out, given back before SERVO starts.
+        let answers = arm.rtf.rtf_out.claim_producer().ok_or(EBUSY)?;
+        let mut data = arm.servo.data.lock();
+        servo_cycle::run(sh, arm, &answers, &mut data, ServoMode::Main);
+        let rec = *data.cycle.servo.log_record();
+        drop(data);
+        arm.log.push(&rec);
+    }
+    Ok(())
 }
 
 fn ns_u32(ns: i64) -> u32 {
     u32::try_from(ns.max(0)).unwrap_or(u32::MAX)
-}
-
-fn servo_cycle(sh: &Shared, data: &mut ServoData, mode: ServoMode) {
-    // Configuration: a fresh copy unless PROTO_IN is writing it.
-    match sh.config.try_read() {
-        Some(cfg) => data.config = *cfg,
-        None => {
-            sh.config_busy.add(1, Relaxed);
-        }
-    }
-    // After a fail-safe the motor line refuses a power-on by itself.
-    let power_request = sh.take_power_request();
-    if power_request == PowerRequest::On {
-        sh.power_on_cycle.store(data.cycle.servo.cycle(), Relaxed);
-    }
-    let inputs = ServoInputs {
-        power_request,
-        live_effort: None,
-    };
-
-    let result = proto_synchro::run_cycle(sh, data, &sh.motor_line, &inputs, mode);
-    sh.last_status.store(result.vp.status, Relaxed);
-    if result.extrapolated {
-        sh.vpr_extrapolated.add(1, Relaxed);
-    }
 }
 
 /// What the fault injection did to this cycle.
@@ -162,23 +169,21 @@ enum Injected {
 /// the line. `overrun N`: stay busy past the 3/4 check, then run the cycle
 /// late; `hang`: never finish, blocked (as in a deadlock) until rmmod stops
 /// the thread.
-fn inject_fault(kt: &CurrentKThread, sh: &Shared) -> Injected {
-    if sh.fault_hang.load(Acquire) {
+fn inject_fault(kt: &CurrentKThread, sh: &Controller) -> Injected {
+    if sh.faults.hang_requested() {
         while !kt.should_stop() {
             kernel::time::delay::fsleep(kernel::time::Delta::from_millis(1));
         }
         return Injected::Hung;
     }
-    let left = sh.fault_overruns.load(Acquire);
-    if left == 0 {
+    if !sh.faults.take_overrun() {
         return Injected::Nothing;
     }
-    sh.fault_overruns.store(left.saturating_sub(1), Release);
     let until = sh
-        .expiry_ns
-        .load(Acquire)
-        .saturating_add(sh.period_ns() / 8 * 7);
-    while sh.now_ns() < until && !sh.is_stopping() {
+        .clock
+        .expiry_ns()
+        .saturating_add(sh.time.period_ns() / 8 * 7);
+    while sh.time.now_ns() < until && !sh.life.is_stopping() {
         kernel::time::delay::udelay(kernel::time::Delta::from_micros(5));
     }
     Injected::Overrun

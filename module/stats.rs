@@ -9,24 +9,27 @@
 //! (wake-up, execution, period jitter), rendered by hap-core
 //! (`render_histograms`).
 //!
-//! Both copy CLOCK's published statistics (a seqcount over `u64` words,
-//! `Shared::read_stats`) into their own allocation and render from the
-//! copy: no lock is taken, CLOCK never waits for a reader (a copy that
-//! overlaps CLOCK's write is retried by the reader). PROTO_IN's counters
-//! come from its own publication, never from `mtx_proto`.
+//! Both copy CLOCK's published statistics (`StatsPublication`, a seqcount
+//! over `u64` words) into their own allocation and render from the copy:
+//! no lock is taken, CLOCK never waits for a reader (a copy that overlaps
+//! CLOCK's write is retried by the reader). PROTO_IN's counters come from
+//! its own publication, never from `mtx_proto`. The two devices are the
+//! controller's monitor: they are registered with the whole `Controller`.
 
 use crate::{
+    arm::Arm,
+    controller::Controller,
     device::{HapDevice, OpenFile},
     hap_core::{
         clock::MISS_LIMIT,
-        proto_in::Reject,
         stats::{
             render_histograms, render_summary, HapStats, HistogramView, SliceWriter,
             HIST_RENDER_MAX, STATS_WORDS,
         },
     },
     rtf::RTF_FRAMES,
-    shared::{new_stats, Shared, NEVER},
+    servo_data::NEVER,
+    stats_publication::new_stats,
 };
 use core::fmt::Write;
 use kernel::{
@@ -35,45 +38,17 @@ use kernel::{
     sync::{atomic::Relaxed, Arc},
 };
 
-/// A fixed-capacity text buffer for `core::fmt` (no allocation while formatting).
-pub(crate) struct TextBuf<const N: usize> {
-    buf: [u8; N],
-    len: usize,
-}
-
-impl<const N: usize> TextBuf<N> {
-    pub(crate) fn new() -> Self {
-        TextBuf {
-            buf: [0; N],
-            len: 0,
-        }
-    }
-
-    pub(crate) fn as_bytes(&self) -> &[u8] {
-        self.buf.get(..self.len).unwrap_or(&[])
-    }
-}
-
-impl<const N: usize> Write for TextBuf<N> {
-    fn write_str(&mut self, s: &str) -> core::fmt::Result {
-        let free = self.buf.get_mut(self.len..).unwrap_or(&mut []);
-        let mut n = 0usize;
-        for (d, b) in free.iter_mut().zip(s.as_bytes()) {
-            *d = *b;
-            n = n.saturating_add(1);
-        }
-        self.len = self.len.saturating_add(n).min(N);
-        if n < s.len() {
-            Err(core::fmt::Error)
-        } else {
-            Ok(())
-        }
-    }
-}
-
 const STATS_TEXT_MAX: usize = 8192;
 
-/// `/dev/hap_stats`: the text rendered at open.
+/// What one arm's statistics device shows: CLOCK's statistics and arm
+/// `arm`'s counters.
+pub(crate) struct StatsView {
+    pub(crate) ctrl: Arc<Controller>,
+    pub(crate) arm: Arc<Arm>,
+}
+
+/// `/dev/hap_stats` (arm 0), `/dev/hap1_stats` (arm 1): the text rendered
+/// at open.
 pub(crate) struct StatsDevice {
     text: KVVec<u8>,
 }
@@ -87,27 +62,28 @@ fn cycle_or_never(v: u64) -> i64 {
 }
 
 /// A copy of CLOCK's published statistics, in its own allocation.
-fn copy_stats(sh: &Shared) -> Result<KBox<HapStats>> {
+fn copy_stats(sh: &Controller) -> Result<KBox<HapStats>> {
     let mut words = KVVec::<u64>::zeroed(STATS_WORDS, GFP_KERNEL)?;
-    let mut st = new_stats(sh.period_us)?;
-    sh.read_stats(&mut words, &mut st)?;
+    let mut st = new_stats(sh.time.period_us)?;
+    sh.stats.read(&mut words, &mut st)?;
     Ok(st)
 }
 
-fn render(sh: &Shared, st: &mut HapStats, out: &mut [u8]) -> usize {
-    let (proto_counters, session) = sh.proto_counters();
-    let (rtf_out_len, _, _) = sh.rtf_out.counts();
-    let (replies_len, _, _) = sh.rtf_replies.counts();
-    let (rtf_in_len, _, _) = sh.rtf_in.counts();
-    let (simlog_len, simlog_pushed, simlog_dropped) = sh.simlog.counts();
+fn render(sh: &Controller, arm: &Arm, st: &mut HapStats, out: &mut [u8]) -> usize {
+    let publication = arm.proto.publication();
+    let proto_counters = &publication.counters;
+    let (rtf_out_len, _, _) = arm.rtf.rtf_out.counts();
+    let (replies_len, _, _) = arm.rtf.rtf_replies.counts();
+    let (rtf_in_len, _, _) = arm.rtf.rtf_in.counts();
+    let (simlog_len, simlog_pushed, simlog_dropped) = arm.log.counts();
     let summary = {
         let c = &mut st.counters;
         c.frames_in = proto_counters.accepted;
-        c.frames_out = sh.answers_sent.load(Relaxed);
+        c.frames_out = arm.rtf.answers_sent.load(Relaxed);
         c.frames_rejected = proto_counters.decode_rejects;
         // Frames a full rtf_out refused: counted by SERVO and PROTO_IN.
-        c.answers_dropped = sh.answers_dropped.load(Relaxed);
-        c.vpr_extrapolated = sh.vpr_extrapolated.load(Relaxed);
+        c.answers_dropped = arm.rtf.answers_dropped.load(Relaxed);
+        c.vpr_extrapolated = arm.servo.vpr_extrapolated.load(Relaxed);
         st.summary()
     };
     let n = render_summary(&summary, out).len;
@@ -115,15 +91,15 @@ fn render(sh: &Shared, st: &mut HapStats, out: &mut [u8]) -> usize {
         return n;
     };
     let mut w = SliceWriter::new(rest);
-    let state = sh.state();
-    let mode = sh.cycle.mode().name();
-    let status = crate::io::arm_status(sh);
+    let state = sh.life.state();
+    let mode = sh.clock.handshake.mode().name();
+    let status = arm.io.arm_status();
     let _ = (|| -> core::fmt::Result {
         writeln!(w, "state: {}", state.name())?;
         writeln!(w, "mode: {mode}")?;
         writeln!(w, "miss_limit: {MISS_LIMIT}")?;
-        writeln!(w, "timer_ticks: {}", sh.cycle.tick())?;
-        writeln!(w, "ticks_not_posted: {}", sh.ticks_not_posted.load(Relaxed))?;
+        writeln!(w, "timer_ticks: {}", sh.clock.handshake.tick())?;
+        writeln!(w, "ticks_not_posted: {}", sh.clock.ticks_not_posted())?;
         writeln!(w, "status: {status:#06x}")?;
         writeln!(
             w,
@@ -135,36 +111,24 @@ fn render(sh: &Shared, st: &mut HapStats, out: &mut [u8]) -> usize {
             "motors_enabled: {}",
             u8::from(status & crate::hap_core::vp::status::MOTORS_ENABLED != 0)
         )?;
-        let gate = sh.motor_line.gate();
+        let gate = arm.io.motor_line.gate();
         writeln!(
             w,
             "motors_inhibited: {}",
             u8::from(gate == crate::hap_core::io::Gate::FailSafe)
         )?;
         writeln!(w, "motor_gate: {}", gate.name())?;
-        writeln!(w, "session: {session}")?;
-        writeln!(w, "sessions_opened: {}", proto_counters.sessions_opened)?;
-        writeln!(w, "vpr_frames: {}", proto_counters.vpr_frames)?;
-        writeln!(w, "config_frames: {}", proto_counters.config_frames)?;
-        writeln!(w, "replies: {}", proto_counters.replies)?;
-        writeln!(
-            w,
-            "retransmits_reacked: {}",
-            proto_counters.retransmits_reacked
-        )?;
-        writeln!(w, "superseded: {}", proto_counters.superseded)?;
-        for (name, v) in Reject::PROTOCOL_NAMES
-            .iter()
-            .zip(proto_counters.protocol_rejects.iter())
-        {
-            writeln!(w, "rejected.{name}: {v}")?;
-        }
+        publication.render(&mut w)?;
         writeln!(
             w,
             "rtf_in.bad_length: {}",
-            sh.rtf_in_counters.bad_length.load(Relaxed)
+            arm.rtf.rtf_in_counters.bad_length.load(Relaxed)
         )?;
-        writeln!(w, "rtf_in.full: {}", sh.rtf_in_counters.full.load(Relaxed))?;
+        writeln!(
+            w,
+            "rtf_in.full: {}",
+            arm.rtf.rtf_in_counters.full.load(Relaxed)
+        )?;
         writeln!(w, "rtf_in.queued: {rtf_in_len}")?;
         writeln!(w, "rtf_out.queued: {rtf_out_len}")?;
         writeln!(w, "rtf_out.capacity: {RTF_FRAMES}")?;
@@ -172,40 +136,37 @@ fn render(sh: &Shared, st: &mut HapStats, out: &mut [u8]) -> usize {
         writeln!(w, "simlog.queued: {simlog_len}")?;
         writeln!(w, "simlog.pushed: {simlog_pushed}")?;
         writeln!(w, "simlog.dropped: {simlog_dropped}")?;
-        writeln!(w, "stats_read_busy: {}", sh.stats_read_busy.load(Relaxed))?;
-        writeln!(w, "answers_sent: {}", sh.answers_sent.load(Relaxed))?;
+        writeln!(w, "stats_read_busy: {}", sh.stats.read_busy())?;
+        writeln!(w, "answers_sent: {}", arm.rtf.answers_sent.load(Relaxed))?;
         writeln!(
             w,
-            "answers_skipped_lock_busy: {}",
-            sh.answers_skipped.load(Relaxed)
+            "answers_skipped_latch_busy: {}",
+            arm.rtf.answers_skipped_latch_busy.load(Relaxed)
         )?;
-        writeln!(w, "config_busy: {}", sh.config_busy.load(Relaxed))?;
+        writeln!(w, "config_busy: {}", arm.servo.config_busy.load(Relaxed))?;
         writeln!(
             w,
             "effort_loaded_cycle: {}",
-            cycle_or_never(sh.effort_loaded_cycle.load(Relaxed))
+            cycle_or_never(arm.effort.loaded_cycle())
         )?;
         writeln!(
             w,
             "power_on_cycle: {}",
-            cycle_or_never(sh.power_on_cycle.load(Relaxed))
+            cycle_or_never(arm.servo.power_on_cycle())
         )?;
         writeln!(
             w,
             "fault_overruns_pending: {}",
-            sh.fault_overruns.load(Relaxed)
+            sh.faults.overruns_pending()
         )?;
-        let e = sh.expiry_ns.load(Relaxed);
-        writeln!(
-            w,
-            "last.timer_late_ns: {}",
-            sh.tick_ns.load(Relaxed).saturating_sub(e)
-        )?;
+        writeln!(w, "last.timer_late_ns: {}", sh.clock.timer_late_ns())?;
         writeln!(
             w,
             "hrtimer_resolution_ns: {}",
-            crate::clock::hrtimer_resolution_ns()
-        )
+            crate::kconfig::hrtimer_resolution_ns()
+        )?;
+        writeln!(w, "arms: {}", sh.arm_count())?;
+        writeln!(w, "arm: {}", arm.index)
     })();
     n.saturating_add(w.len())
 }
@@ -220,11 +181,15 @@ fn snapshot(max: usize, render: impl FnOnce(&mut [u8]) -> usize) -> Result<KVVec
 }
 
 impl HapDevice for StatsDevice {
-    const NAME: &'static CStr = c"hap_stats";
+    const NAMES: &'static [&'static CStr] = &[c"hap_stats", c"hap1_stats"];
 
-    fn open(sh: &Arc<Shared>) -> Result<Self> {
-        let mut st = copy_stats(sh)?;
-        let text = snapshot(STATS_TEXT_MAX, |out| render(sh, &mut st, out))?;
+    type Part = StatsView;
+
+    fn open(view: &Arc<StatsView>) -> Result<Self> {
+        let mut st = copy_stats(&view.ctrl)?;
+        let text = snapshot(STATS_TEXT_MAX, |out| {
+            render(&view.ctrl, &view.arm, &mut st, out)
+        })?;
         Ok(StatsDevice { text })
     }
 
@@ -239,9 +204,11 @@ pub(crate) struct HistDevice {
 }
 
 impl HapDevice for HistDevice {
-    const NAME: &'static CStr = c"hap_hist";
+    const NAMES: &'static [&'static CStr] = &[c"hap_hist"];
 
-    fn open(sh: &Arc<Shared>) -> Result<Self> {
+    type Part = Controller;
+
+    fn open(sh: &Arc<Controller>) -> Result<Self> {
         let st = copy_stats(sh)?;
         let series = st.histograms().map(|(name, h)| HistogramView {
             name,

@@ -76,3 +76,34 @@ impl Ktime {
         unsafe { core::mem::transmute::<bindings::ktime_t, Instant<Monotonic>>(self.0) }
     }
 }
+
+/// The controller's time base: the servo period and the origin of every
+/// nanosecond stamp (set once at insmod, read by everyone, never written).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Timebase {
+    pub(crate) period_us: u32,
+    epoch: Ktime,
+}
+
+impl Timebase {
+    pub(crate) fn new(period_us: u32) -> Self {
+        Timebase {
+            period_us,
+            epoch: Ktime::now(),
+        }
+    }
+
+    /// Nanoseconds since the epoch of a clock reading.
+    pub(crate) fn ns_of(&self, t: Ktime) -> i64 {
+        t.ns_since(self.epoch)
+    }
+
+    /// Nanoseconds since the epoch, now.
+    pub(crate) fn now_ns(&self) -> i64 {
+        self.ns_of(Ktime::now())
+    }
+
+    pub(crate) fn period_ns(&self) -> i64 {
+        i64::from(self.period_us).saturating_mul(1000)
+    }
+}

@@ -201,7 +201,7 @@ p(f"| bridge: received / forwarded / rejected / write errors | {g(b, 'received')
 p(f"| bridge: answers read / sent / no client / send errors | {g(b, 'answers')} / {g(b, 'sent')} / {g(b, 'answers_no_client')} / {g(b, 'send_errors')} |")
 rej = {k: v for k, v in m.items() if k.startswith("rejected.") and v != "0"}
 p(f"| module: frames in / rejected (by reason) | {g(m, 'frames_in')} / {g(m, 'frames_rejected')} decode + {i(m, 'rejected.no_session') or 0} no_session + {i(m, 'rejected.stale_seq') or 0} stale + {i(m, 'rejected.not_a_request') or 0} not_a_request {rej or ''} |")
-p(f"| module: answers sent / dropped (lock busy, rtf_out full) / skipped lock busy | {g(m, 'answers_sent')} / {g(m, 'answers_dropped')} / {g(m, 'answers_skipped_lock_busy')} |")
+p(f"| module: answers sent / dropped (rtf_out full) / skipped (VPr latch busy) | {g(m, 'answers_sent')} / {g(m, 'answers_dropped')} / {g(m, 'answers_skipped_latch_busy')} |")
 p(f"| module: servo cycles / deadline misses / max consecutive / fail-safe | {g(m, 'cycles')} / {g(m, 'misses')} / {g(m, 'max_consecutive_misses')} / {g(m, 'fail_safe')} |")
 p(f"| module: VPr extrapolated cycles / degraded cycles | {g(m, 'vpr_extrapolated')} / {g(m, 'degraded_cycles')} |")
 p(f"| kernel warnings in the guest log | {len(problems)} |")

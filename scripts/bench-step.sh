@@ -112,7 +112,7 @@ if command -v valgrind >/dev/null; then
            'hap_core::control::spring_energy$' 'hap_core::arm::Kinematics::jacobian_transpose_mul$' \
            'hap_core::fixed::Fx::sin_cos_unit$' 'hap_core::fixed::Quat::from_mat3$' \
            'hap_core::proto_synchro::Synchro::receive_vp$' 'hap_core::protocol::encode$' \
-           'hap_core::simulator::LogRecord::encode$'; do
+           'hap_core::position_log::LogRecord::encode$'; do
     printf '  %-50s %6d\n' "$(echo "$f" | sed 's/^hap_core:://; s/\$$//')" "$(per_cycle "$f")"
   done
   echo "(callgrind_annotate $out/step-$stamp/callgrind.servo_steps.$cg_period.2000 | head -40 for the self cost)"

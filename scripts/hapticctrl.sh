@@ -7,7 +7,8 @@
 # inside the minimal QEMU guest.
 #
 # Usage:
-#   hapticctrl.sh start [--period-us N] [MODULE_PARAM=VALUE ...]   (N: 100..=10000 µs)
+#   hapticctrl.sh start [--period-us N] [MODULE_PARAM=VALUE ...]   (N: 100..=10000 µs;
+#                   arms=2: two arms, and a second bridge for arm 1)
 #   hapticctrl.sh stop
 #   hapticctrl.sh status
 #
@@ -18,6 +19,8 @@
 #   HAP_PROTO       proto_interface executable (default: $HERE/proto_interface,
 #                   else proto_interface from PATH)
 #   HAP_PROTO_ARGS  extra arguments for proto_interface (e.g. "--port 5000")
+#   HAP_PROTO_ARGS1 with arms=2: extra arguments for arm 1's bridge (default
+#                   "--port 5001"); it serves /dev/hap1_rtf_in, /dev/hap1_rtf_out
 #   HAP_RUN         directory for the pid and log files (default /run, else /tmp)
 #   HAP_DEV         where the module's devices appear (default /dev; for tests)
 #   HAP_KEY         the client's pre-shared key file, mode 0600 (default
@@ -46,6 +49,9 @@ RUN=${HAP_RUN:-/run}
 DEV=${HAP_DEV:-/dev}
 PIDFILE=$RUN/proto_interface.pid
 LOGFILE=$RUN/proto_interface.log
+# With arms=2, arm 1's bridge.
+PIDFILE1=$RUN/proto_interface1.pid
+LOGFILE1=$RUN/proto_interface1.log
 MODNAME=hapticctrl
 
 say() { echo "hapticctrl: $*"; }
@@ -91,8 +97,9 @@ module_loaded() {
 }
 
 proto_pid() {
-    if [ -f "$PIDFILE" ]; then
-        pid=$(cat "$PIDFILE")
+    pf=${1:-$PIDFILE}
+    if [ -f "$pf" ]; then
+        pid=$(cat "$pf")
         if [ -n "$pid" ] && kill -0 "$pid" 2>/dev/null; then
             echo "$pid"
             return 0
@@ -104,6 +111,7 @@ proto_pid() {
 start() {
     period=""
     params=""
+    arms=1
     while [ $# -gt 0 ]; do
         case "$1" in
             --period-us)
@@ -113,6 +121,12 @@ start() {
                 ;;
             --period-us=*)
                 period=${1#--period-us=}
+                shift
+                ;;
+            arms=*)
+                arms=${1#arms=}
+                case "$arms" in 1|2) ;; *) die "arms=$arms: 1 or 2" ;; esac
+                params="$params $1"
                 shift
                 ;;
             *=*)
@@ -136,7 +150,7 @@ start() {
     fi
 
     module_loaded && die "$MODNAME is already loaded (run: $0 stop)"
-    if pid=$(proto_pid); then
+    if pid=$(proto_pid) || pid=$(proto_pid "$PIDFILE1"); then
         die "proto_interface already running (pid $pid)"
     fi
     ko=$(find_module) || exit 1
@@ -161,6 +175,7 @@ start() {
     fi
     group=""
     stats="$RUN/proto_interface.stats"
+    stats_arg=""
     if [ -n "$user" ]; then
         # Numeric ids from /etc/passwd and /etc/group (the bridge resolves the
         # names the same way; no NSS needed).
@@ -177,43 +192,55 @@ start() {
         chown "$uid:$group" "$RUN/hapticctrl" || die "cannot give $RUN/hapticctrl to $user"
         stats="$RUN/hapticctrl/proto_interface.stats"
         ln -sf hapticctrl/proto_interface.stats "$RUN/proto_interface.stats"
-        auth="$auth --user $user --stats-file $stats"
+        auth="$auth --user $user"
+        stats_arg="--stats-file $stats"
     fi
 
     # 1. the bridge, in the background: it waits for the module's devices.
     # shellcheck disable=SC2086
-    "$proto" $auth ${HAP_PROTO_ARGS:-} >>"$LOGFILE" 2>&1 &
+    "$proto" $auth $stats_arg ${HAP_PROTO_ARGS:-} >>"$LOGFILE" 2>&1 &
     pid=$!
     echo "$pid" >"$PIDFILE"
+    if [ "$arms" = 2 ]; then
+        # Arm 1's bridge: its own port, devices and counters.
+        # shellcheck disable=SC2086
+        "$proto" $auth --stats-file "${stats%.stats}1.stats" \
+            --rtf-in "$DEV/hap1_rtf_in" --rtf-out "$DEV/hap1_rtf_out" \
+            ${HAP_PROTO_ARGS1:---port 5001} >>"$LOGFILE1" 2>&1 &
+        echo "$!" >"$PIDFILE1"
+    fi
     sleep 1
-    kill -0 "$pid" 2>/dev/null || { rm -f "$PIDFILE"; die "proto_interface exited at once (see $LOGFILE)"; }
+    kill -0 "$pid" 2>/dev/null || { rm -f "$PIDFILE"; stop_bridge "$PIDFILE1" >/dev/null; die "proto_interface exited at once (see $LOGFILE)"; }
     say "proto_interface started (pid $pid, log $LOGFILE)"
+    if [ "$arms" = 2 ]; then
+        pid1=$(proto_pid "$PIDFILE1") || { stop_bridge "$PIDFILE" >/dev/null; die "arm 1's proto_interface exited at once (see $LOGFILE1)"; }
+        say "arm 1's proto_interface started (pid $pid1, log $LOGFILE1)"
+    fi
 
     # 2. the module, with its parameters.
     # shellcheck disable=SC2086
     if ! insmod "$ko" $params; then
-        kill -TERM "$pid" 2>/dev/null
-        rm -f "$PIDFILE"
+        stop_bridge "$PIDFILE" >/dev/null
+        stop_bridge "$PIDFILE1" >/dev/null
         die "insmod $ko$params failed"
     fi
     say "module $ko inserted${params:+ with$params}"
     # 3. the bridge's group may use the two FIFO devices, and nothing else.
     if [ -n "$group" ]; then
-        for d in "$DEV/hap_rtf_in" "$DEV/hap_rtf_out"; do
+        fifos="$DEV/hap_rtf_in $DEV/hap_rtf_out"
+        [ "$arms" = 2 ] && fifos="$fifos $DEV/hap1_rtf_in $DEV/hap1_rtf_out"
+        for d in $fifos; do
             n=0
             while [ ! -e "$d" ] && [ $n -lt 20 ]; do sleep 0.1 2>/dev/null || sleep 1; n=$((n + 1)); done
             chgrp "$group" "$d" && chmod 0660 "$d" || die "cannot give $d to group $group"
         done
-        say "bridge runs as $user; $DEV/hap_rtf_in and $DEV/hap_rtf_out: group $group, mode 0660"
+        say "bridge runs as $user; $fifos: group $group, mode 0660"
     fi
 }
 
-stop() {
-    rc=0
-    if [ -e "$DEV/hap_stop" ]; then
-        echo 1 >"$DEV/hap_stop" 2>/dev/null && say "stop requested (fail-safe)"
-    fi
-    if pid=$(proto_pid); then
+# stop_bridge PIDFILE: SIGTERM the bridge of PIDFILE (SIGKILL after 3 s).
+stop_bridge() {
+    if pid=$(proto_pid "$1"); then
         kill -TERM "$pid" 2>/dev/null
         n=0
         while kill -0 "$pid" 2>/dev/null && [ $n -lt 30 ]; do
@@ -226,10 +253,20 @@ stop() {
         else
             say "proto_interface stopped (pid $pid)"
         fi
-    else
-        say "proto_interface not running"
+        rm -f "$1"
+        return 0
     fi
-    rm -f "$PIDFILE"
+    rm -f "$1"
+    return 1
+}
+
+stop() {
+    rc=0
+    if [ -e "$DEV/hap_stop" ]; then
+        echo 1 >"$DEV/hap_stop" 2>/dev/null && say "stop requested (fail-safe)"
+    fi
+    stop_bridge "$PIDFILE" || say "proto_interface not running"
+    stop_bridge "$PIDFILE1" || true
     if module_loaded; then
         if rmmod "$MODNAME"; then
             say "module removed"
@@ -246,6 +283,7 @@ stop() {
 status() {
     if module_loaded; then say "module: loaded"; else say "module: not loaded"; fi
     if pid=$(proto_pid); then say "proto_interface: running (pid $pid)"; else say "proto_interface: not running"; fi
+    if pid=$(proto_pid "$PIDFILE1"); then say "arm 1's proto_interface: running (pid $pid)"; fi
 }
 
 [ $# -ge 1 ] || usage

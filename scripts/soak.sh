@@ -106,7 +106,7 @@ nok() { fail=$((fail + 1)); echo "not ok - $*"; }
   for s in wakeup exec jitter; do
     echo "module: $s min/avg/max $(us "$(sv hap_stats.txt $s.min_ns)") / $(us "$(sv hap_stats.txt $s.avg_ns)") / $(us "$(sv hap_stats.txt $s.max_ns)") us, p50/p99/p99.9 $(sv hap_stats.txt $s.p50_us) / $(sv hap_stats.txt $s.p99_us) / $(sv hap_stats.txt $s.p99_9_us) us, >=1ms $(sv hap_stats.txt $s.overflow)"
   done
-  echo "module: frames in $(sv hap_stats.txt frames_in), rejected $(sv hap_stats.txt frames_rejected), answers sent $(sv hap_stats.txt answers_sent), answers dropped $(sv hap_stats.txt answers_dropped), skipped (lock busy) $(sv hap_stats.txt answers_skipped_lock_busy), VPr extrapolated $(sv hap_stats.txt vpr_extrapolated), sessions opened $(sv hap_stats.txt sessions_opened)"
+  echo "module: frames in $(sv hap_stats.txt frames_in), rejected $(sv hap_stats.txt frames_rejected), answers sent $(sv hap_stats.txt answers_sent), answers dropped $(sv hap_stats.txt answers_dropped), skipped (latch busy) $(sv hap_stats.txt answers_skipped_latch_busy), VPr extrapolated $(sv hap_stats.txt vpr_extrapolated), sessions opened $(sv hap_stats.txt sessions_opened)"
   echo "bridge: $(tr '\n' ' ' < "$dir/proto_interface.txt" | head -c 600)"
   echo "client: $(grep -E '^(duration_s|vpr_sent|answers|sample_rate_hz|lost|loss_ratio|rtt_ms_mean|rtt_ms_max|coupling_error_mean_m):' "$dir/summary.txt" 2>/dev/null | tr '\n' ' ')"
 } > "$dir/report.txt"

@@ -1,5 +1,5 @@
 #!/bin/sh
-# qemu: --icount --timeout 300
+# qemu: --icount --timeout 300 --extra Documentation/protocol.md:/data/protocol.md
 # Spec §4.1 phase 2: after power-on the servo loop couples the arm to the
 # client's virtual object (VPr stream on rtf_in); answers on rtf_out carry
 # the coupling wrench; bad frames are rejected and counted while the loop runs.
@@ -44,6 +44,27 @@ expect "bad length refused at the device" "$(stat_value rtf_in.bad_length)" = 1
 expect "the cycle kept running" $((c1 - c0)) -ge 150
 expect "no deadline miss under hostile input" "$(stat_value misses)" = 0
 expect "state is running" "$(stat_value state)" = running
+# A retransmitted request gets its ack again, a reordered one is not
+# applied over a newer request of the same setting (protocol.md §3); both
+# are counted in /dev/hap_stats.
+check "a session opened" hapdev send open --seq 1000 --ack
+sleep_cycles 20
+s=$(stat_value session)
+check "a command-type request (ack requested)" hapdev send cmd none --session "$s" --seq 1002 --ack
+check "the same request again, same sequence number" hapdev send cmd none --session "$s" --seq 1002 --ack
+check "an older request of the same setting" hapdev send cmd impedance --session "$s" --seq 1001 --ack
+sleep_cycles 20
+expect "the retransmission re-acked" "$(stat_value retransmits_reacked)" = 1
+expect "the reordered request superseded" "$(stat_value superseded)" = 1
+# Every protocol counter protocol.md documents is in /dev/hap_stats.
+sed -n '/BEGIN STATS COUNTERS/,/END STATS COUNTERS/s/^| `\([^`]*\)`.*/\1/p' /data/protocol.md > /tmp/documented
+cat /dev/hap_stats > /tmp/stats.now
+missing=""
+while read -r k; do
+  grep -q "^$k: " /tmp/stats.now || missing="$missing $k"
+done < /tmp/documented
+expect "protocol.md documents counters" "$(wc -l < /tmp/documented)" -ge 20
+expect "every documented counter is in /dev/hap_stats" "${missing:-none}" = none
 grep -E '^(frames_|rejected\.|answers_|vpr_|session)' /dev/hap_stats | sed 's/^/# stats /'
 check "rmmod" rmmod hapticctrl
 finish

@@ -56,7 +56,7 @@ c0=$(stat_value cycles)
 wait_cycles $((c0 + QUIET))
 cat /dev/hap_stats > /tmp/stats.quiet
 figures quiet /tmp/stats.quiet
-q_skipped=$(sed -n 's/^answers_skipped_lock_busy: //p' /tmp/stats.quiet)
+q_skipped=$(sed -n 's/^answers_skipped_latch_busy: //p' /tmp/stats.quiet)
 
 echo "# --- hostile phase"
 PIDS=""
@@ -71,7 +71,7 @@ done' &
 PIDS="$PIDS $!"
 h0=$(stat_value cycles)
 m0=$(stat_value misses)
-s0=$(stat_value answers_skipped_lock_busy)
+s0=$(stat_value answers_skipped_latch_busy)
 a0=$(stat_value answers_sent)
 wait_cycles $((h0 + N / 3))
 # Stop the session's reader (it reads rtf_out) in the middle of the session.
@@ -81,9 +81,9 @@ wait_cycles $((h0 + N / 3))
 kill -STOP $COUPLE
 echo "# session reader stopped at cycle $(stat_value cycles)"
 sleep_cycles 200
-w0=$(stat_value answers_skipped_lock_busy)
+w0=$(stat_value answers_skipped_latch_busy)
 sleep 1
-w1=$(stat_value answers_skipped_lock_busy)
+w1=$(stat_value answers_skipped_latch_busy)
 kill -CONT $COUPLE
 echo "# session reader continued at cycle $(stat_value cycles)"
 wait_cycles $((h0 + N))
@@ -101,7 +101,7 @@ expect "no deadline miss in the whole run" "$(v misses)" = 0
 expect "no deadline miss in the hostile phase" $(( $(v misses) - m0 )) = 0
 expect "state is running" "$(v state)" = running
 expect "no answer skipped while only monitoring ran (1 s, client stopped)" $((w1 - w0)) = 0
-echo "# answers skipped (the VPr latch read overlapped PROTO_IN publishing): quiet phase $q_skipped, hostile phase $(( $(v answers_skipped_lock_busy) - s0 ))"
+echo "# answers skipped (the VPr latch read overlapped PROTO_IN publishing): quiet phase $q_skipped, hostile phase $(( $(v answers_skipped_latch_busy) - s0 ))"
 expect "answers kept flowing in the hostile phase" $(( $(v answers_sent) - a0 )) -ge $(( N / 2 ))
 expect "the 64 KiB effort loads went through (>= 100)" "$(cat /tmp/effort.ok 2>/dev/null || echo 0)" -ge 100
 check "dmesg: effort sequences loaded" dmesg_has 'effort sequence loaded: 100 keyframes'

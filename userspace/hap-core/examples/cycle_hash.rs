@@ -16,9 +16,9 @@ use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench};
 use hap_core::io::MotorLine;
+use hap_core::position_log::LogRecord;
 use hap_core::protocol::MAX_FRAME_LEN;
 use hap_core::servo::{PowerRequest, ServoInputs, ServoMode};
-use hap_core::simulator::LogRecord;
 
 struct Fnv(u64);
 

@@ -2,8 +2,9 @@
 //!
 //! Each period the kernel's CLOCK task wakes SERVO, sleeps until
 //! [`check_offset_ns`] (3/4 of the period) and calls
-//! [`Supervisor::check`] with the `servo_working` flag: still `true` there
-//! means SERVO (main or auxiliary) missed its deadline.
+//! [`Supervisor::check`] with whether SERVO (main or auxiliary) had not
+//! finished that tick's cycle by then (the cycle handshake's check): a
+//! missed deadline.
 //!
 //! - A miss increments the consecutive-miss counter and puts SERVO in
 //!   [`Mode::Degraded`] (its auxiliary path) from the next cycle.
@@ -208,9 +209,9 @@ impl Supervisor {
         self.stop_requested = true;
     }
 
-    /// The 3/4-period check. `servo_working` is the flag SERVO sets at the
-    /// start of its loop and clears at the end.
-    pub fn check(&mut self, servo_working: bool) -> Verdict {
+    /// The 3/4-period check. `missed`: SERVO had not finished this tick's
+    /// cycle at the check (`CycleHandshake::check`'s `finished` is false).
+    pub fn check(&mut self, missed: bool) -> Verdict {
         if let Some(cause) = self.cause {
             return Verdict::FailSafe(cause);
         }
@@ -218,7 +219,7 @@ impl Supervisor {
         if self.mode == Mode::Degraded {
             self.degraded_cycles = self.degraded_cycles.saturating_add(1);
         }
-        let verdict = if servo_working {
+        let verdict = if missed {
             self.miss_count = self.miss_count.saturating_add(1);
             self.total_misses = self.total_misses.saturating_add(1);
             if self.miss_count > self.max_consecutive {

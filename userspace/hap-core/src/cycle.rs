@@ -1,6 +1,6 @@
 //! One SERVO cycle (spec §3.5) as a single function: the synchronizer's
-//! `receive_vp` (copy VPr when the protocol try-lock succeeded, else the best
-//! estimate), the servo step with the link watchdog's gain bounding the
+//! `receive_vp` (copy VPr when the read of the VPr latch succeeded, else the
+//! best estimate), the servo step with the link watchdog's gain bounding the
 //! coupling force at the motors (and so the answer, its reaction), and the
 //! answer frames of `send_vp`.
 //!
@@ -8,12 +8,14 @@
 //! call; the host replay (`hap_replay`) calls the very same function, so a
 //! scripted run gives the same position log bit for bit in both places.
 
+use super::arm_io::ArmIo;
 use super::config::ServoConfig;
 use super::fixed::Fx;
 use super::io::MotorLine;
 use super::proto_synchro::{answer_frame, answer_twist_frame, twist_due, Synchro};
 use super::protocol::{encode, FrameHeader, MAX_FRAME_LEN};
 use super::servo::{Servo, ServoInputs, ServoMode};
+use super::simulator::Simulator;
 use super::vp::{VpReceived, VpSent};
 
 /// What one cycle produced.
@@ -29,19 +31,27 @@ pub struct CycleResult {
     pub link_gain: Fx,
 }
 
-/// SERVO's whole state: the servo (simulator, controller, io, effort) and
-/// the synchronizer's VPr copy.
-pub struct ServoCycle {
-    pub servo: Servo,
+/// SERVO's whole state: the servo (the arm behind the I/O seam, the
+/// controller, effort) and the synchronizer's VPr copy.
+pub struct ServoCycle<A: ArmIo = Simulator> {
+    pub servo: Servo<A>,
     pub synchro: Synchro,
     period_us: u32,
 }
 
-impl ServoCycle {
-    /// A servo cycle for `period_us` (100..=10000, see `clock::validate_period_us`).
+impl ServoCycle<Simulator> {
+    /// A servo cycle of the simulated arm for `period_us` (100..=10000, see
+    /// `clock::validate_period_us`).
     pub const fn new(period_us: u32) -> ServoCycle {
+        ServoCycle::with_arm(Simulator::new(period_us.saturating_mul(1000)), period_us)
+    }
+}
+
+impl<A: ArmIo> ServoCycle<A> {
+    /// A servo cycle of `arm` for `period_us`.
+    pub const fn with_arm(arm: A, period_us: u32) -> ServoCycle<A> {
         ServoCycle {
-            servo: Servo::new(period_us.saturating_mul(1000)),
+            servo: Servo::with_arm(arm, period_us.saturating_mul(1000)),
             synchro: Synchro::new(),
             period_us,
         }
@@ -52,20 +62,20 @@ impl ServoCycle {
     }
 
     /// Run one cycle. `line` is hap_io's motor line (outside every lock, see
-    /// `io`). `vpr_shared` is the VPr shared memory when the protocol
-    /// try-lock succeeded, `None` when it was busy.
+    /// `io`). `vpr_latest` is the VPr read from the VPr latch, `None` when
+    /// every read attempt overlapped PROTO_IN's publication.
     pub fn run(
         &mut self,
         line: &MotorLine,
         inputs: &ServoInputs,
         config: &ServoConfig,
-        vpr_shared: Option<&VpReceived>,
+        vpr_latest: Option<&VpReceived>,
         mode: ServoMode,
     ) -> CycleResult {
         let now_cycle = self.servo.cycle();
         let est = self
             .synchro
-            .receive_vp(vpr_shared, now_cycle, self.period_us);
+            .receive_vp(vpr_latest, now_cycle, self.period_us);
         // A VPr the watchdog has faded to nothing no longer couples the arm.
         let mut vpr = est.vpr;
         if est.link_gain == Fx::ZERO {
@@ -90,7 +100,10 @@ impl ServoCycle {
             link_gain: est.link_gain,
         }
     }
+}
 
+/// `send_vp`'s encoding does not depend on the arm.
+impl ServoCycle {
     /// Encode the answer frames for `vp` (`send_vp`): always an `Answer`,
     /// plus an `AnswerTwist` every `TWIST_EVERY` cycles. `next_seq` gives the
     /// sequence number of each frame. Returns the number of frames written.

@@ -403,6 +403,158 @@ pub fn parse_effort_command(
     Ok(EffortCommand::Sequence { text, keyframes })
 }
 
+/// One effort command as the device writer hands it to SERVO: the
+/// parsed and validated form of an [`EffortCommand`], a sequence already
+/// turned into keyframes. It crosses a lock-free ring as one record of at
+/// most [`EFFORT_RECORD_BYTES`] ([`EffortHandoff::encode`], read back by
+/// [`EffortHandoff::decode`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EffortHandoff<'a> {
+    /// Unload the sequence.
+    Clear,
+    /// End the live effort (back to the sequence).
+    LiveOff,
+    /// A live effort overriding the sequence.
+    Live(EffortSample),
+    /// Load these keyframes (at most [`EFFORT_CAPACITY`]).
+    Sequence(&'a [EffortKeyframe]),
+}
+
+/// Bytes of one keyframe in a handoff record: `t_ms` (4), the six mN/mN·m
+/// values (4 each), the flags (1), 3 bytes of padding.
+const HANDOFF_KEY_BYTES: usize = 32;
+/// Bytes of the handoff record's header: kind (1), then for `Live` the
+/// dead-man flag and buttons (1 each); the keyframe count at byte 8 (8).
+const HANDOFF_HEADER_BYTES: usize = 16;
+/// The largest handoff record: a full sequence.
+pub const EFFORT_RECORD_BYTES: usize = HANDOFF_HEADER_BYTES + EFFORT_CAPACITY * HANDOFF_KEY_BYTES;
+
+const KIND_CLEAR: u8 = 1;
+const KIND_LIVE_OFF: u8 = 2;
+const KIND_LIVE: u8 = 3;
+const KIND_SEQUENCE: u8 = 4;
+
+fn put(out: &mut [u8], at: usize, bytes: &[u8]) {
+    if let Some(d) = at
+        .checked_add(bytes.len())
+        .and_then(|end| out.get_mut(at..end))
+    {
+        d.copy_from_slice(bytes);
+    }
+}
+
+fn get<const N: usize>(rec: &[u8], at: usize) -> [u8; N] {
+    let mut b = [0u8; N];
+    if let Some(s) = at.checked_add(N).and_then(|end| rec.get(at..end)) {
+        b.copy_from_slice(s);
+    }
+    b
+}
+
+impl<'a> EffortHandoff<'a> {
+    /// Encode into `out`; the record's length. A sequence longer than
+    /// [`EFFORT_CAPACITY`] keeps its first `EFFORT_CAPACITY` keyframes
+    /// (the writer's parser never produces one).
+    pub fn encode(&self, out: &mut [u8; EFFORT_RECORD_BYTES]) -> usize {
+        match self {
+            EffortHandoff::Clear => {
+                put(out, 0, &[KIND_CLEAR]);
+                1
+            }
+            EffortHandoff::LiveOff => {
+                put(out, 0, &[KIND_LIVE_OFF]);
+                1
+            }
+            EffortHandoff::Live(s) => {
+                put(out, 0, &[KIND_LIVE, u8::from(s.dead_man), s.buttons]);
+                let w = &s.wrench;
+                let raw = [
+                    w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z,
+                ];
+                let mut at = HANDOFF_HEADER_BYTES;
+                for v in raw {
+                    put(out, at, &v.0.to_le_bytes());
+                    at = at.saturating_add(8);
+                }
+                at
+            }
+            EffortHandoff::Sequence(keys) => {
+                let keys = keys.get(..EFFORT_CAPACITY).unwrap_or(keys);
+                put(out, 0, &[KIND_SEQUENCE]);
+                put(out, 8, &(keys.len() as u64).to_le_bytes());
+                let mut at = HANDOFF_HEADER_BYTES;
+                for k in keys {
+                    put(out, at, &k.t_ms.to_le_bytes());
+                    let mut v_at = at.saturating_add(4);
+                    for v in Iterator::chain(k.force_mn.iter(), k.torque_mnm.iter()) {
+                        put(out, v_at, &v.to_le_bytes());
+                        v_at = v_at.saturating_add(4);
+                    }
+                    put(out, at.saturating_add(28), &[k.flags]);
+                    at = at.saturating_add(HANDOFF_KEY_BYTES);
+                }
+                at
+            }
+        }
+    }
+
+    /// Decode record `rec`, a sequence's keyframes into `keys` (at most
+    /// `keys.len()` of them). `None` for a record of no known kind; a short
+    /// record reads its missing bytes as 0.
+    pub fn decode(rec: &[u8], keys: &'a mut [EffortKeyframe]) -> Option<EffortHandoff<'a>> {
+        match rec.first().copied()? {
+            KIND_CLEAR => Some(EffortHandoff::Clear),
+            KIND_LIVE_OFF => Some(EffortHandoff::LiveOff),
+            KIND_LIVE => {
+                let fx = |j: usize| {
+                    Fx(i64::from_le_bytes(get(
+                        rec,
+                        HANDOFF_HEADER_BYTES.saturating_add(j.saturating_mul(8)),
+                    )))
+                };
+                Some(EffortHandoff::Live(EffortSample {
+                    wrench: Wrench {
+                        force: Vec3 {
+                            x: fx(0),
+                            y: fx(1),
+                            z: fx(2),
+                        },
+                        torque: Vec3 {
+                            x: fx(3),
+                            y: fx(4),
+                            z: fx(5),
+                        },
+                    },
+                    dead_man: get::<1>(rec, 1)[0] != 0,
+                    buttons: get::<1>(rec, 2)[0],
+                }))
+            }
+            KIND_SEQUENCE => {
+                let count = usize::try_from(u64::from_le_bytes(get(rec, 8))).unwrap_or(0);
+                let count = count.min(keys.len()).min(EFFORT_CAPACITY);
+                for (i, k) in keys.iter_mut().enumerate().take(count) {
+                    let at =
+                        HANDOFF_HEADER_BYTES.saturating_add(i.saturating_mul(HANDOFF_KEY_BYTES));
+                    let i32_at = |j: usize| {
+                        i32::from_le_bytes(get(
+                            rec,
+                            at.saturating_add(4).saturating_add(j.saturating_mul(4)),
+                        ))
+                    };
+                    *k = EffortKeyframe {
+                        t_ms: u32::from_le_bytes(get(rec, at)),
+                        force_mn: [i32_at(0), i32_at(1), i32_at(2)],
+                        torque_mnm: [i32_at(3), i32_at(4), i32_at(5)],
+                        flags: get::<1>(rec, at.saturating_add(28))[0],
+                    };
+                }
+                Some(EffortHandoff::Sequence(keys.get(..count).unwrap_or(&[])))
+            }
+            _ => None,
+        }
+    }
+}
+
 /// Plays a keyframe sequence (fixed capacity, no allocation) and an optional
 /// live override.
 #[derive(Clone, Debug)]
@@ -550,5 +702,87 @@ fn sample_of(k: &EffortKeyframe) -> EffortSample {
         },
         dead_man: k.flags & FLAG_DEAD_MAN != 0,
         buttons: (k.flags >> 1) & 3,
+    }
+}
+
+#[cfg(test)]
+mod handoff_tests {
+    use super::*;
+
+    fn round_trip(
+        h: EffortHandoff<'_>,
+    ) -> (usize, std::vec::Vec<EffortKeyframe>, EffortHandoff<'static>) {
+        let mut rec = [0u8; EFFORT_RECORD_BYTES];
+        let n = h.encode(&mut rec);
+        let keys: &'static mut [EffortKeyframe] = std::boxed::Box::leak(std::boxed::Box::new(
+            [EffortKeyframe::ZERO; EFFORT_CAPACITY],
+        ));
+        let back = EffortHandoff::decode(&rec[..n], keys).expect("a known kind");
+        let seq = match back {
+            EffortHandoff::Sequence(k) => k.to_vec(),
+            _ => std::vec::Vec::new(),
+        };
+        (n, seq, back)
+    }
+
+    #[test]
+    fn every_kind_round_trips() {
+        assert_eq!(round_trip(EffortHandoff::Clear).2, EffortHandoff::Clear);
+        assert_eq!(round_trip(EffortHandoff::LiveOff).2, EffortHandoff::LiveOff);
+        let v3 = |a, b, c| Vec3 {
+            x: Fx(a),
+            y: Fx(b),
+            z: Fx(c),
+        };
+        let live = EffortSample {
+            wrench: Wrench {
+                force: v3(1, -2, i64::MAX),
+                torque: v3(i64::MIN, 5, -6),
+            },
+            dead_man: true,
+            buttons: 3,
+        };
+        let (n, _, back) = round_trip(EffortHandoff::Live(live));
+        assert_eq!(back, EffortHandoff::Live(live));
+        assert_eq!(n, HANDOFF_HEADER_BYTES + 6 * 8);
+        // Every keyframe field distinct, a full sequence (the largest record).
+        let keys: std::vec::Vec<EffortKeyframe> = (0..EFFORT_CAPACITY as i32)
+            .map(|i| EffortKeyframe {
+                t_ms: u32::MAX - i as u32,
+                force_mn: [i, -i - 1, i32::MAX - i],
+                torque_mnm: [i32::MIN + i, 7 * i, -7 * i],
+                flags: (i % 8) as u8,
+            })
+            .collect();
+        let (n, seq, _) = round_trip(EffortHandoff::Sequence(&keys));
+        assert_eq!(n, EFFORT_RECORD_BYTES);
+        assert_eq!(seq, keys);
+        let (n, seq, _) = round_trip(EffortHandoff::Sequence(&keys[..1]));
+        assert_eq!(n, HANDOFF_HEADER_BYTES + HANDOFF_KEY_BYTES);
+        assert_eq!(seq, keys[..1]);
+        let (_, seq, _) = round_trip(EffortHandoff::Sequence(&[]));
+        assert!(seq.is_empty());
+    }
+
+    #[test]
+    fn bad_records_decode_to_nothing_or_zeroes() {
+        let mut keys = [EffortKeyframe::ZERO; 4];
+        assert_eq!(EffortHandoff::decode(&[], &mut keys), None);
+        assert_eq!(EffortHandoff::decode(&[0], &mut keys), None);
+        assert_eq!(EffortHandoff::decode(&[9, 1, 2], &mut keys), None);
+        // A sequence announcing more keyframes than the scratch holds, in a
+        // short record: bounded by the scratch, missing bytes read as 0.
+        let mut rec = [0u8; 24];
+        rec[0] = KIND_SEQUENCE;
+        rec[8..16].copy_from_slice(&u64::MAX.to_le_bytes());
+        rec[16..20].copy_from_slice(&7u32.to_le_bytes());
+        match EffortHandoff::decode(&rec, &mut keys) {
+            Some(EffortHandoff::Sequence(k)) => {
+                assert_eq!(k.len(), 4);
+                assert_eq!(k[0].t_ms, 7);
+                assert!(k[1..].iter().all(|k| *k == EffortKeyframe::ZERO));
+            }
+            other => panic!("{other:?}"),
+        }
     }
 }

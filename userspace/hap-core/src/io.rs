@@ -1,6 +1,7 @@
-//! hap_io: `get_measures` / `send_commands`, redirected to the simulator in
-//! this version (a real arm would read encoders and write DACs here), and the
-//! motor line between them and the motors.
+//! hap_io: the motor line between the servo's commands and the motors, and
+//! `send_commands` onto it. `get_measures` is the arm's side of the I/O
+//! seam ([`super::arm_io`]): the simulator in this version, a real arm's
+//! encoders and DACs behind the same trait.
 //!
 //! # The motor line
 //!
@@ -34,7 +35,6 @@ use core::sync::atomic::{AtomicBool, AtomicI64, AtomicU8, Ordering};
 
 use super::arm;
 use super::fixed::{Fx, Joints, JOINTS_ZERO};
-use super::simulator::{Measures, Simulator};
 
 /// The motor command gate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -214,11 +214,6 @@ impl MotorLine {
             JOINTS_ZERO
         }
     }
-}
-
-/// `get_measures`: acquire encoders, speeds, force sensor and switches.
-pub fn get_measures(sim: &mut Simulator, line: &MotorLine) -> Measures {
-    sim.measures(line)
 }
 
 /// `send_commands`: write joint torques to the motors through the line.

@@ -11,6 +11,7 @@
 #![forbid(unsafe_code)]
 
 pub mod arm;
+pub mod arm_io;
 pub mod clock;
 pub mod config;
 pub mod control;
@@ -20,7 +21,9 @@ pub mod effort;
 pub mod fixed;
 pub mod handshake;
 pub mod io;
+pub mod mode;
 pub mod platform;
+pub mod position_log;
 pub mod proto_in;
 pub mod proto_synchro;
 pub mod protocol;
@@ -31,4 +34,5 @@ pub mod spsc;
 pub mod state_model;
 pub mod stats;
 pub mod vp;
+pub mod words;
 pub mod xdr;

@@ -4,8 +4,9 @@
 //! [`ProtoIn::handle`] with the frame's bytes, and carries out the returned
 //! [`Outcome`]: publish the new configuration (under the configuration
 //! rwsem), forward a power request, queue the reply on rtf_out, count the
-//! reject. The VPr shared memory lives here, so SERVO's try-lock of the same
-//! lock reads it with [`ProtoIn::vpr`].
+//! reject. The VPr shared memory lives here ([`ProtoIn::vpr`]); the kernel
+//! publishes it with the session into the VPr latch after each frame, and
+//! SERVO reads the latch, never this lock.
 //!
 //! Session rules:
 //! - `OpenSession` opens a new session (a new client, or the same one after a
@@ -67,6 +68,7 @@ const fn slot(frame: &Frame) -> Option<usize> {
     }
 }
 use super::vp::VpReceived;
+use super::words::WordWalk;
 
 /// Why PROTO_IN dropped a frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -146,6 +148,67 @@ impl ProtoCounters {
         self.protocol_rejects
             .iter()
             .fold(d, |a, b| a.saturating_add(*b))
+    }
+}
+
+/// PROTO_IN's publication after each frame: its counters and the session
+/// (what /dev/hap_stats shows of PROTO_IN, without taking its lock).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct ProtoPublication {
+    pub counters: ProtoCounters,
+    /// The open session (0: none).
+    pub session: u16,
+}
+
+/// Words of a [`ProtoPublication`] ([`ProtoPublication::visit_words`]).
+pub const PROTO_PUBLICATION_WORDS: usize = 8 + DecodeError::COUNT + Reject::PROTOCOL_COUNT;
+
+impl ProtoPublication {
+    /// The publication's words (`PROTO_PUBLICATION_WORDS`, word `i` handed
+    /// to `f` as `(i, &mut value)`: reading `*value` encodes, writing it
+    /// decodes). The destructuring names every counter: a counter added to
+    /// [`ProtoCounters`] without a word here does not compile.
+    pub fn visit_words(&mut self, f: impl FnMut(usize, &mut u64)) {
+        let ProtoCounters {
+            accepted,
+            decode_rejects,
+            protocol_rejects,
+            vpr_frames,
+            config_frames,
+            sessions_opened,
+            replies,
+            retransmits_reacked,
+            superseded,
+        } = &mut self.counters;
+        let mut k = WordWalk::new(0, f);
+        k.word(accepted);
+        k.words(decode_rejects);
+        k.words(protocol_rejects);
+        k.word(vpr_frames);
+        k.word(config_frames);
+        k.word(sessions_opened);
+        k.word(replies);
+        k.word(retransmits_reacked);
+        k.word(superseded);
+        k.u16(&mut self.session);
+    }
+
+    /// PROTO_IN's lines of /dev/hap_stats (`key: value`), after the
+    /// summary (which has `frames_in` and the decoder's `rejected.*`).
+    /// Every key is listed in Documentation/protocol.md, §4.
+    pub fn render(&self, w: &mut impl core::fmt::Write) -> core::fmt::Result {
+        let c = &self.counters;
+        writeln!(w, "session: {}", self.session)?;
+        writeln!(w, "sessions_opened: {}", c.sessions_opened)?;
+        writeln!(w, "vpr_frames: {}", c.vpr_frames)?;
+        writeln!(w, "config_frames: {}", c.config_frames)?;
+        writeln!(w, "replies: {}", c.replies)?;
+        writeln!(w, "retransmits_reacked: {}", c.retransmits_reacked)?;
+        writeln!(w, "superseded: {}", c.superseded)?;
+        for (name, v) in Reject::PROTOCOL_NAMES.iter().zip(c.protocol_rejects.iter()) {
+            writeln!(w, "rejected.{name}: {v}")?;
+        }
+        Ok(())
     }
 }
 
@@ -692,5 +755,59 @@ mod tests {
         assert_eq!(p.session(), s);
         assert!(!p.vpr().valid);
         assert_eq!(p.counters().rejected_total(), 20_000);
+    }
+
+    #[test]
+    fn publication_words_round_trip_every_counter() {
+        let mut p = ProtoPublication {
+            counters: ProtoCounters {
+                accepted: 1,
+                decode_rejects: core::array::from_fn(|i| 100 + i as u64),
+                protocol_rejects: core::array::from_fn(|i| 200 + i as u64),
+                vpr_frames: 3,
+                config_frames: 4,
+                sessions_opened: 5,
+                replies: 6,
+                retransmits_reacked: 7,
+                superseded: u64::MAX,
+            },
+            session: 0xabcd,
+        };
+        let w: [u64; PROTO_PUBLICATION_WORDS] =
+            super::super::words::check::to_words(|f| p.visit_words(f));
+        let decode = |w: &[u64; PROTO_PUBLICATION_WORDS]| {
+            let mut q = ProtoPublication::default();
+            q.visit_words(|i, v| *v = w[i]);
+            q
+        };
+        assert_eq!(decode(&w), p);
+        // Each word reaches its own counter.
+        for i in 0..PROTO_PUBLICATION_WORDS {
+            let mut w2 = w;
+            w2[i] ^= 1;
+            assert_ne!(decode(&w2), p, "word {i} is not decoded");
+        }
+        // The counters a frame moves arrive: a re-acked retransmission and a
+        // superseded request, counted by PROTO_IN, read back as counted.
+        let mut proto = ProtoIn::new();
+        let s = open(&mut proto);
+        let set = Frame::SetTimeStep(Fx::from_ratio(1, 1000));
+        handle(&mut proto, s, 5, CTRL_ACK_REQUEST, &set);
+        handle(&mut proto, s, 5, CTRL_ACK_REQUEST, &set);
+        handle(&mut proto, s, 3, CTRL_ACK_REQUEST, &set);
+        p = ProtoPublication {
+            counters: *proto.counters(),
+            session: proto.session(),
+        };
+        assert_eq!(p.counters.retransmits_reacked, 1);
+        assert_eq!(p.counters.superseded, 1);
+        let w: [u64; PROTO_PUBLICATION_WORDS] =
+            super::super::words::check::to_words(|f| p.visit_words(f));
+        assert_eq!(decode(&w), p);
+        let mut text = std::string::String::new();
+        p.render(&mut text).unwrap();
+        assert!(text.contains("retransmits_reacked: 1\n"), "{text}");
+        assert!(text.contains("superseded: 1\n"), "{text}");
+        assert!(text.contains(&format!("session: {s}\n")), "{text}");
     }
 }

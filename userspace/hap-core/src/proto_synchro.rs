@@ -1,8 +1,9 @@
 //! The protocol synchronizer (spec §3.3.1.3), run by SERVO every cycle.
 //!
-//! `receive_vp`: SERVO try-locks the protocol mutex. With the lock it copies
-//! the shared VPr; without it (PROTO_IN is decoding) it keeps the copy it
-//! has. Either way it then computes the *best estimate* of VPr at this
+//! `receive_vp`: SERVO reads the VPr latch (the session and VPr PROTO_IN
+//! publishes, without any lock). With a read it copies the VPr; when every
+//! read attempt overlapped a publication it keeps the copy it has. Either
+//! way it then computes the *best estimate* of VPr at this
 //! cycle: the client's pose extrapolated with the client's twist over the
 //! age of the data, **bounded** by [`EXTRAPOLATION_HORIZON_US`] (20 ms):
 //! past the horizon the estimate holds the pose reached at the horizon and
@@ -249,6 +250,9 @@ pub fn estimate_vpr(last: &VpReceived, now_cycle: u64, period_us: u32) -> VprEst
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Synchro {
     copy: VpReceived,
+    /// Cycles on which the VPr latch was being written on every read
+    /// attempt (the field's name is part of the state's `Debug` text, which
+    /// `examples/cycle_hash.rs` fingerprints).
     busy_count: u64,
 }
 
@@ -290,15 +294,15 @@ impl Synchro {
         }
     }
 
-    /// `receive_vp()`: `shared` is the VPr shared memory when the try-lock
-    /// succeeded, `None` when the lock was busy.
+    /// `receive_vp()`: `latest` is the VPr read from the VPr latch, `None`
+    /// when every read attempt overlapped PROTO_IN's publication.
     pub fn receive_vp(
         &mut self,
-        shared: Option<&VpReceived>,
+        latest: Option<&VpReceived>,
         now_cycle: u64,
         period_us: u32,
     ) -> VprEstimate {
-        let busy = match shared {
+        let busy = match latest {
             Some(v) => {
                 self.copy = *v;
                 false
@@ -316,13 +320,13 @@ impl Synchro {
         e
     }
 
-    /// The last VPr copied from shared memory.
+    /// The last VPr copied from the latch.
     pub const fn last(&self) -> &VpReceived {
         &self.copy
     }
 
-    /// Cycles on which the protocol lock was busy.
-    pub const fn busy_count(&self) -> u64 {
+    /// Cycles on which the VPr latch was being written on every read attempt.
+    pub const fn latch_busy_cycles(&self) -> u64 {
         self.busy_count
     }
 
@@ -518,7 +522,7 @@ mod tests {
         let e = s.receive_vp(None, 11, 1000);
         assert!(e.extrapolated);
         assert_eq!(e.vpr.seq, 5);
-        assert_eq!(s.busy_count(), 2);
+        assert_eq!(s.latch_busy_cycles(), 2);
         s.reset();
         assert!(!s.last().valid);
     }

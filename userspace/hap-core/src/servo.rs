@@ -20,25 +20,19 @@
 //! is `const`, so the kernel can keep it in a static or a boxed allocation and
 //! call `init` once (or let the first `step` do it).
 
+use super::arm_io::{get_measures, ArmIo};
 use super::config::ServoConfig;
 use super::control::{cartesian_control, ControlOutput, Controller};
 use super::effort::{EffortKeyframe, EffortParseError, EffortPlayer, EffortSample};
 use super::fixed::Fx;
 use super::io::{self, MotorLine};
+use super::position_log::{LogRecord, LogTiming};
 use super::proto_synchro::VprEstimate;
-use super::simulator::{LogMode, LogRecord, LogTiming, Simulator};
+use super::simulator::Simulator;
 use super::state_model::{build_logical_state, build_physical_state};
 use super::vp::{alarm, status, VpReceived, VpSent};
 
-/// Which SERVO path runs this cycle.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum ServoMode {
-    /// Normal behaviour.
-    #[default]
-    Main,
-    /// Auxiliary (degraded) behaviour after a deadline miss.
-    Degraded,
-}
+pub use super::mode::ServoMode;
 
 /// A power request from the (simulated) arm's power button.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -99,13 +93,16 @@ pub mod log_flags {
     pub const POSE_UNKNOWN: u16 = 1 << 8;
 }
 
-/// Everything the servo loop owns.
+/// Everything the servo loop owns. `A` is the arm behind the I/O seam
+/// (the simulated Virtuose by default).
 #[derive(Clone, Debug)]
-pub struct Servo {
+pub struct Servo<A: ArmIo = Simulator> {
     period_ns: u32,
     period: Fx,
     initialized: bool,
-    sim: Simulator,
+    /// The arm (the field keeps its name: it is part of the state's `Debug`
+    /// text, which `examples/cycle_hash.rs` fingerprints).
+    sim: A,
     ctrl: Controller,
     effort: EffortPlayer,
     cycle: u64,
@@ -125,15 +122,31 @@ const VP_ZERO: VpSent = VpSent {
     vpr_seq: 0,
 };
 
-impl Servo {
-    /// A servo for a period of `period_ns` (1 ms: 1_000_000), not yet
-    /// initialised (the first `step` calls `init`).
+impl Servo<Simulator> {
+    /// A servo of the simulated arm for a period of `period_ns` (1 ms:
+    /// 1_000_000), not yet initialised (the first `step` calls `init`).
     pub const fn new(period_ns: u32) -> Servo {
+        Servo::with_arm(Simulator::new(period_ns), period_ns)
+    }
+
+    pub fn simulator(&self) -> &Simulator {
+        &self.sim
+    }
+
+    pub fn simulator_mut(&mut self) -> &mut Simulator {
+        &mut self.sim
+    }
+}
+
+impl<A: ArmIo> Servo<A> {
+    /// A servo of `arm` for a period of `period_ns`, not yet initialised
+    /// (the first `step` calls `init`, which calibrates the arm).
+    pub const fn with_arm(arm: A, period_ns: u32) -> Servo<A> {
         Servo {
             period_ns,
             period: Fx::from_ns(period_ns as u64),
             initialized: false,
-            sim: Simulator::new(period_ns),
+            sim: arm,
             ctrl: Controller::new(),
             effort: EffortPlayer::new(),
             cycle: 0,
@@ -159,13 +172,13 @@ impl Servo {
         }
     }
 
-    /// Initialise: calibrate the simulated arm to its rest configuration,
+    /// Initialise: calibrate the arm at rest (the simulated one: its rest
+    /// configuration),
     /// controller filters and gains, cycle 0. The loaded effort sequence is
     /// kept (playback restarts). The motor line is the caller's (a new
     /// [`MotorLine`] is inhibited and unpowered).
     pub fn init(&mut self) {
-        self.sim = Simulator::new(self.period_ns);
-        self.sim.calibrate();
+        self.sim.calibrate_at_rest(self.period_ns);
         self.ctrl.init(self.period);
         self.cycle = 0;
         self.alarms = 0;
@@ -217,11 +230,12 @@ impl Servo {
         };
     }
 
-    pub fn simulator(&self) -> &Simulator {
+    /// The arm behind the I/O seam.
+    pub fn arm(&self) -> &A {
         &self.sim
     }
 
-    pub fn simulator_mut(&mut self) -> &mut Simulator {
+    pub fn arm_mut(&mut self) -> &mut A {
         &mut self.sim
     }
 
@@ -314,12 +328,12 @@ impl Servo {
             // The supervisor puts SERVO on its degraded path after a miss.
             self.alarms |= alarm::DEADLINE_MISS;
         }
-        let m = io::get_measures(&mut self.sim, line);
+        let m = get_measures(&mut self.sim, line);
         let ls = build_logical_state(&m, line.gate(), config, mode, self.alarms);
         let ps = build_physical_state(&m);
         let out = cartesian_control(&mut self.ctrl, &ls, &ps, config, vpr);
         io::send_commands(line, &out.joint_torques);
-        self.sim.simulate_arm(line);
+        self.sim.run_period(line);
         self.out = out;
 
         self.alarms = ls.alarms | out.alarms;
@@ -356,10 +370,7 @@ impl Servo {
             flags,
             cycle: self.cycle,
             time_us: t_us,
-            mode: match mode {
-                ServoMode::Main => LogMode::Main,
-                ServoMode::Degraded => LogMode::Degraded,
-            },
+            mode: mode.log_mode(),
             fail_safe_step: 0,
             vpr_age_cycles: if vpr.valid {
                 u32::try_from(self.cycle.saturating_sub(vpr.received_cycle)).unwrap_or(u32::MAX)

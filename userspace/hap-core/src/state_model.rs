@@ -4,11 +4,11 @@
 //! measures of one cycle.
 
 use super::arm::{self, Kinematics};
+use super::arm_io::Measures;
 use super::config::{CommandType, IndexingMode, ServoConfig};
 use super::fixed::{Joints, Pose, Twist, Wrench};
 use super::io::Gate;
-use super::servo::ServoMode;
-use super::simulator::Measures;
+use super::mode::ServoMode;
 use super::vp::{alarm, status};
 
 /// What the controller knows about the arm's logic this cycle.

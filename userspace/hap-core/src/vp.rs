@@ -2,7 +2,8 @@
 //! (the spec's shared memories): `VpReceived` (VPr, the client's virtual
 //! object as PROTO_IN decoded it) and `VpSent` (VP, what SERVO answers).
 
-use super::fixed::{Fx, Pose, Twist, Wrench};
+use super::fixed::{Pose, Twist, Wrench};
+use super::words::WordWalk;
 
 /// VPr: the client's virtual object, as last received.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -31,27 +32,13 @@ impl VpReceived {
     /// they cannot disagree; `Fx` values cross as their bits. The kernel's
     /// VPr latch (PROTO_IN → SERVO) is these words under a seqcount.
     pub fn visit_words(&mut self, f: impl FnMut(usize, &mut u64)) {
-        struct Walk<F> {
-            i: usize,
-            f: F,
-        }
-        impl<F: FnMut(usize, &mut u64)> Walk<F> {
-            fn word(&mut self, w: &mut u64) {
-                (self.f)(self.i, w);
-                self.i = self.i.saturating_add(1);
-            }
-            fn fx(&mut self, x: &mut Fx) {
-                let mut w = x.0 as u64;
-                self.word(&mut w);
-                x.0 = w as i64;
-            }
-            fn u32(&mut self, x: &mut u32) {
-                let mut w = u64::from(*x);
-                self.word(&mut w);
-                *x = u32::try_from(w).unwrap_or(0);
-            }
-        }
-        let mut k = Walk { i: 0, f };
+        self.visit_words_from(0, f);
+    }
+
+    /// [`VpReceived::visit_words`] with the first word numbered `first`
+    /// (a record that embeds the VPr after words of its own).
+    pub fn visit_words_from(&mut self, first: usize, f: impl FnMut(usize, &mut u64)) {
+        let mut k = WordWalk::new(first, f);
         let (p, o) = (&mut self.pose.position, &mut self.pose.orientation);
         for x in [
             &mut p.x, &mut p.y, &mut p.z, &mut o.x, &mut o.y, &mut o.z, &mut o.w,
@@ -65,9 +52,30 @@ impl VpReceived {
         k.u32(&mut self.seq);
         k.u32(&mut self.client_time_us);
         k.word(&mut self.received_cycle);
-        let mut valid = u64::from(self.valid);
-        k.word(&mut valid);
-        self.valid = valid != 0;
+        k.bool(&mut self.valid);
+    }
+}
+
+/// The VPr latch's record (PROTO_IN → SERVO): the protocol's session and
+/// its VPr, published together whenever either changes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct VprLatchRecord {
+    /// The open session (0: none).
+    pub session: u16,
+    pub vpr: VpReceived,
+}
+
+/// Words of a [`VprLatchRecord`]: the session, then the VPr's.
+pub const VPR_LATCH_WORDS: usize = 1 + VPR_WORDS;
+
+impl VprLatchRecord {
+    /// The record's words (see [`VpReceived::visit_words`]): word 0 is the
+    /// session, then the VPr's `VPR_WORDS`.
+    pub fn visit_words(&mut self, f: impl FnMut(usize, &mut u64)) {
+        let mut k = WordWalk::new(0, f);
+        k.u16(&mut self.session);
+        let mut f = k.into_inner();
+        self.vpr.visit_words_from(1, &mut f);
     }
 }
 
@@ -135,7 +143,7 @@ pub struct VpSent {
 mod tests {
     use super::*;
 
-    use super::super::fixed::{Quat, Vec3};
+    use super::super::fixed::{Fx, Quat, Vec3};
 
     fn words_of(v: &VpReceived) -> [u64; VPR_WORDS] {
         let mut out = [0u64; VPR_WORDS];
@@ -198,5 +206,41 @@ mod tests {
             w2[i] ^= 1;
             assert_ne!(from_words(&w2), base, "word {i} is not decoded");
         }
+    }
+
+    fn latch_words(r: &VprLatchRecord) -> [u64; VPR_LATCH_WORDS] {
+        let mut r = *r;
+        super::super::words::check::to_words(|f| r.visit_words(f))
+    }
+
+    fn latch_from(words: &[u64; VPR_LATCH_WORDS]) -> VprLatchRecord {
+        let mut r = VprLatchRecord::default();
+        r.visit_words(|i, w| *w = words[i]);
+        r
+    }
+
+    #[test]
+    fn latch_record_round_trips_session_and_vpr() {
+        let vpr = VpReceived {
+            seq: 77,
+            client_time_us: 5,
+            received_cycle: 9,
+            valid: true,
+            ..VpReceived::default()
+        };
+        for session in [0u16, 1, 0xbeef, u16::MAX] {
+            let r = VprLatchRecord { session, vpr };
+            let w = latch_words(&r);
+            assert_eq!(w[0], u64::from(session), "the session is word 0");
+            assert_eq!(latch_from(&w), r);
+            // The VPr part is exactly the VPr's own layout.
+            let own = words_of(&vpr);
+            assert_eq!(&w[1..], &own[..]);
+        }
+        // A session word out of u16 range reads as no session (never a
+        // truncated, wrong session id).
+        let mut w = latch_words(&VprLatchRecord { session: 3, vpr });
+        w[0] = 0x1_0003;
+        assert_eq!(latch_from(&w).session, 0);
     }
 }

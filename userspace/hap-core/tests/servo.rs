@@ -7,8 +7,9 @@ use hap_core::config::{CommandType, ServoConfig};
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench, JOINTS_ZERO};
 use hap_core::io::MotorLine;
+use hap_core::position_log::{LogDecodeError, LogRecord};
 use hap_core::servo::{PowerRequest, Servo, ServoInputs, ServoMode, StandaloneServo};
-use hap_core::simulator::{LogDecodeError, LogRecord, Simulator};
+use hap_core::simulator::Simulator;
 use hap_core::vp::{alarm, status, VpReceived};
 
 const PERIOD_NS: u32 = 1_000_000;
@@ -315,7 +316,7 @@ fn log_record_round_trip_and_errors() {
 /// back; a bad mode byte is refused.
 #[test]
 fn log_record_v2_layout_matches_its_documentation() {
-    use hap_core::simulator::{LogMode, LogTiming};
+    use hap_core::position_log::{LogMode, LogTiming};
     let f = |k: i64| Fx(k.wrapping_mul(0x0101_0101_0101) ^ 0x5a);
     let v3 = |k: i64| Vec3::new(f(k), f(k + 1), f(k + 2));
     let j6 = |k: i64| [f(k), f(k + 1), f(k + 2), f(k + 3), f(k + 4), f(k + 5)];
@@ -423,7 +424,7 @@ fn log_record_carries_command_applied_vpr_and_mode() {
         );
     }
     let r = *s.log_record();
-    assert_eq!(r.mode, hap_core::simulator::LogMode::Degraded);
+    assert_eq!(r.mode, hap_core::position_log::LogMode::Degraded);
     assert_eq!(r.cycle, 399);
     assert_eq!(r.time_us, 399 * u64::from(PERIOD_NS / 1000));
     assert_eq!(r.vpr_position, vpr.pose.position);

@@ -33,8 +33,8 @@ use std::path::{Path, PathBuf};
 
 use hap_core::arm::TAU_MAX;
 use hap_core::control::{BRAKE_START, MAX_FORCE};
+use hap_core::position_log::{LogMode, LogRecord};
 use hap_core::servo::log_flags;
-use hap_core::simulator::{LogMode, LogRecord};
 use hap_core::stats::{histogram_entries, key_values, parse_summary, StatsSummary, HIST_SERIES};
 use hap_core::vp::status;
 use plotters::coord::Shift;
@@ -1590,7 +1590,7 @@ mod tests {
         assert!(felt_stiffness(&[fast, free]).is_none());
     }
     use hap_core::fixed::{Fx, Vec3};
-    use hap_core::simulator::LogTiming;
+    use hap_core::position_log::LogTiming;
     use hap_core::vp::alarm;
 
     const PERIOD_US: u32 = 1000;

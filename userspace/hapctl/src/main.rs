@@ -22,6 +22,10 @@ struct Cli {
     /// Directory holding the module's devices (hap_power, hap_stats, ...).
     #[arg(long, global = true, env = "HAPCTL_DEV_DIR", default_value = "/dev")]
     dev_dir: PathBuf,
+    /// The arm whose devices to use (0: /dev/hap_*, 1: /dev/hap1_* of a
+    /// controller loaded with arms=2).
+    #[arg(long, global = true, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=1))]
+    arm: u8,
     #[command(subcommand)]
     cmd: Cmd,
 }
@@ -35,6 +39,11 @@ enum Cmd {
             i64::from(hap_core::clock::PERIOD_MIN_US)..=i64::from(hap_core::clock::PERIOD_MAX_US)
         ))]
         period_us: Option<u32>,
+        /// Arms the controller serves (module parameter arms; 2: arm 1's
+        /// devices are /dev/hap1_*, and the launch script starts a bridge
+        /// for each arm).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
+        arms: Option<u8>,
         /// The launch script (default: $HAPCTL_SCRIPT, else hapticctrl.sh next to hapctl, else from PATH).
         #[arg(long)]
         script: Option<PathBuf>,
@@ -179,8 +188,13 @@ fn main() -> ExitCode {
     }
 }
 
-fn dev(cli_dir: &Path, name: &str) -> PathBuf {
-    cli_dir.join(name)
+/// Arm `arm`'s device `name` (`hap_power`...) in `cli_dir`: arm 0's keep
+/// their name, arm 1's are `hap1_*`.
+fn dev(cli_dir: &Path, arm: u8, name: &str) -> PathBuf {
+    match (arm, name.strip_prefix("hap_")) {
+        (1, Some(rest)) => cli_dir.join(format!("hap1_{rest}")),
+        _ => cli_dir.join(name),
+    }
 }
 
 fn write_dev(path: &Path, data: &[u8]) -> Result<(), String> {
@@ -239,12 +253,21 @@ fn run_script(script: Option<PathBuf>, args: &[String]) -> Result<(), String> {
 
 fn run(cli: Cli) -> Result<(), String> {
     let d = cli.dev_dir.as_path();
+    let arm = cli.arm;
+    let dev = |d: &Path, name: &str| dev(d, arm, name);
     match cli.cmd {
-        Cmd::Start { period_us, script } => {
+        Cmd::Start {
+            period_us,
+            arms,
+            script,
+        } => {
             let mut args = vec!["start".to_string()];
             if let Some(p) = period_us {
                 args.push("--period-us".into());
                 args.push(p.to_string());
+            }
+            if let Some(n) = arms {
+                args.push(format!("arms={n}"));
             }
             run_script(script, &args)
         }

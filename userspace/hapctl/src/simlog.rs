@@ -1,13 +1,13 @@
 //! Simulator I/O: effort sequences (validated with hap-core's parser before
 //! they go to the device), live effort lines, and the binary position log
-//! (`hap_core::simulator::LogRecord`, decoded by hap-core).
+//! (`hap_core::position_log::LogRecord`, decoded by hap-core).
 
 use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::Path;
 
 use hap_core::effort::{parse_effort_sequence, parse_milli, EffortKeyframe, EFFORT_CAPACITY};
-use hap_core::simulator::{LogMode, LogRecord};
+use hap_core::position_log::{LogMode, LogRecord};
 
 /// Validate an effort sequence; returns a one-line summary.
 pub fn validate_effort(text: &str) -> Result<String, String> {

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use hap_core::simulator::LogRecord;
+use hap_core::position_log::LogRecord;
 
 fn hapctl(dev: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_hapctl"))
@@ -61,6 +61,29 @@ fn wrong_arguments_fail_clearly() {
         &["analyze", "/nonexistent.log", "--out", d.to_str().unwrap()],
     );
     assert_eq!(o.status.code(), Some(1));
+}
+
+#[test]
+fn arm_one_uses_its_own_devices() {
+    let d = tmpdir("arm1");
+    std::fs::write(d.join("hap_power"), "").unwrap();
+    std::fs::write(d.join("hap1_power"), "").unwrap();
+    std::fs::write(d.join("hap1_effort"), "").unwrap();
+    let o = hapctl(&d, &["--arm", "1", "power", "on"]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert_eq!(std::fs::read_to_string(d.join("hap1_power")).unwrap(), "1");
+    assert_eq!(std::fs::read_to_string(d.join("hap_power")).unwrap(), "");
+    let o = hapctl(
+        &d,
+        &["sim", "live", "1", "0", "0", "0", "0", "0", "--arm", "1"],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(std::fs::read_to_string(d.join("hap1_effort"))
+        .unwrap()
+        .starts_with("live "));
+    let o = hapctl(&d, &["--arm", "2", "power", "on"]);
+    assert!(!o.status.success());
+    assert!(err(&o).contains("--arm"), "{}", err(&o));
 }
 
 #[test]
@@ -340,6 +363,36 @@ fn launch_script_starts_and_stops_with_fake_tools() {
     let o = run(&["stop"]);
     assert!(o.status.success(), "{}", err(&o));
     assert!(String::from_utf8_lossy(&o.stdout).contains("proto_interface stopped"));
+    // Two arms: the module gets arms=2 and arm 1 a bridge of its own (its
+    // port, devices and counters); stop ends both.
+    std::fs::remove_file(&calls).unwrap();
+    let o = run(&["start", "--arms", "2"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let c = std::fs::read_to_string(&calls).unwrap();
+    assert!(
+        c.contains(&format!("insmod {} arms=2", ko.display())),
+        "{c}"
+    );
+    assert!(
+        c.contains(&format!("proto --key {} --port 5001", key.display())),
+        "{c}"
+    );
+    assert!(
+        c.contains(&format!(
+            "proto --key {} --stats-file {}/proto_interface1.stats --rtf-in /dev/hap1_rtf_in --rtf-out /dev/hap1_rtf_out --port 5001",
+            key.display(),
+            d.display()
+        )),
+        "{c}"
+    );
+    assert!(d.join("proto_interface1.pid").exists());
+    let o = run(&["stop"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert_eq!(out.matches("proto_interface stopped").count(), 2, "{out}");
+    assert!(!d.join("proto_interface1.pid").exists());
+    let o = run(&["start", "--arms", "3"]);
+    assert!(!o.status.success());
     // As root, with a user for the bridge: its own stats directory, and the
     // two FIFO devices (here plain files) given to its group, mode 0660.
     use std::os::unix::fs::{MetadataExt, PermissionsExt};

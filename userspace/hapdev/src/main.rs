@@ -19,12 +19,12 @@ use hap_core::{
     config::CommandType,
     cycle::ServoCycle,
     fixed::{Fx, Pose, Twist, Vec3},
+    position_log::LogRecord,
     protocol::{
         decode, encode, Frame, FrameHeader, FrameType, CTRL_ACK_REQUEST, MAGIC, MAX_FRAME_LEN,
         VERSION,
     },
     servo::{PowerRequest, ServoInputs, ServoMode},
-    simulator::LogRecord,
 };
 use std::{
     fs::{File, OpenOptions},
@@ -584,7 +584,7 @@ impl CutSummary {
             if s.first_cut_cycle.is_some() {
                 s.records_from_cut += 1;
                 s.servo_records_from_cut +=
-                    usize::from(r.mode != hap_core::simulator::LogMode::FailSafe);
+                    usize::from(r.mode != hap_core::position_log::LogMode::FailSafe);
                 s.torque_nonzero_from_cut += usize::from(nonzero);
                 s.unflagged_after_cut += usize::from(!cut);
             } else {
@@ -758,7 +758,7 @@ mod cut_summary_tests {
     fn step_rec() -> LogRecord {
         LogRecord {
             flags: LINE_CUT,
-            mode: hap_core::simulator::LogMode::FailSafe,
+            mode: hap_core::position_log::LogMode::FailSafe,
             ..LogRecord::ZERO
         }
     }
@@ -787,7 +787,7 @@ mod cut_summary_tests {
 #[cfg(test)]
 mod replay_tests {
     use super::*;
-    use hap_core::simulator::LogTiming;
+    use hap_core::position_log::LogTiming;
 
     /// A guest log as the module writes it: hap-core's records plus the
     /// kernel's timing fields.
