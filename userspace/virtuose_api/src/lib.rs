@@ -159,7 +159,7 @@ impl From<std::io::Error> for VirtError {
 pub type Result<T> = std::result::Result<T, VirtError>;
 
 /// Timeouts, retries and the key.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct Options {
     /// How long to wait for the Ack of one attempt, and for the SessionAck
     /// of the first OpenSession (each further one waits twice as long).
@@ -308,9 +308,11 @@ impl Inner {
                     Err(p) => p.into_inner(),
                 };
                 let w = if let Frame::OpenSession { .. } = frame {
-                    // A fresh nonce for every attempt: the bridge refuses a
-                    // nonce it has already seen.
+                    // A fresh nonce for every attempt: the first round of the
+                    // handshake (the receiver answers the cookie).
                     Some(a.hello(&h, hap_auth::fresh_nonce()?))
+                } else if a.exhausted() {
+                    return Err(VirtError::Closed);
                 } else {
                     a.seal(&h, frame)
                 };
@@ -471,7 +473,7 @@ impl VirtContext {
     /// Open with explicit timeouts.
     pub fn open_with(addr: &str, opts: Options) -> Result<VirtContext> {
         let peer = parse_address(addr)?;
-        let key = match (opts.key, split_options(addr.trim())?.1) {
+        let key = match (opts.key.clone(), split_options(addr.trim())?.1) {
             (Some(k), _) => Some(k),
             (None, Some(path)) => Some(load_key(path)?),
             (None, None) => match std::env::var(KEY_ENV) {
@@ -529,7 +531,7 @@ impl VirtContext {
         let mut vc = VirtContext {
             inner,
             rx: Some(rx),
-            opts,
+            opts: opts.clone(),
             peer,
             force_factor: 1.0,
             speed_factor: 1.0,
@@ -610,7 +612,7 @@ impl VirtContext {
 
     /// Timeouts and retries in use.
     pub fn options(&self) -> Options {
-        self.opts
+        self.opts.clone()
     }
 
     fn check_open(&self) -> Result<()> {
@@ -936,7 +938,12 @@ impl Drop for VirtContext {
 fn reason_name(reason: u32) -> String {
     match reason {
         ERROR_NO_SESSION => "no session".into(),
-        ERROR_REFUSED => "refused: another client holds the session".into(),
+        ERROR_REFUSED => "refused: the controller cannot take a handshake now".into(),
+        hap_auth::ERROR_REPLACED => "session replaced by a newer handshake with this key".into(),
+        hap_auth::ERROR_EXPIRED => "session expired (the client was silent too long)".into(),
+        hap_auth::ERROR_SEQ_EXHAUSTED => {
+            "session ended: its sequence numbers are spent (open a new one)".into()
+        }
         r => match DecodeError::from_index(r as usize) {
             Some(e) => e.name().into(),
             None => format!("reason {r}"),
@@ -959,6 +966,24 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
                     Err(p) => p.into_inner().open(&buf[..n]),
                 };
                 match r {
+                    Ok((_, AuthReply::Cookie)) => {
+                        // The bridge's cookie: prove the key over it. The
+                        // open_proof's sequence number starts the session.
+                        let h = FrameHeader {
+                            control: 0,
+                            session: 0,
+                            seq: inner.next_seq(),
+                            timestamp_us: inner.now_us(),
+                        };
+                        let proof = match a.lock() {
+                            Ok(g) => g.prove(&h),
+                            Err(p) => p.into_inner().prove(&h),
+                        };
+                        if let Some(w) = proof {
+                            let _ = inner.sock.send(w.bytes());
+                        }
+                        continue;
+                    }
                     Ok((h, AuthReply::Frame(f))) => Some((h, f)),
                     Ok((h, AuthReply::SessionAck { period_us })) => {
                         // Verified against this handshake's nonce: the v1

@@ -36,18 +36,19 @@ fn peer() -> Peer {
     let kernel = Arc::new(Mutex::new(ProtoIn::new()));
     let (st, k) = (stop.clone(), kernel.clone());
     std::thread::spawn(move || {
-        let mut gate = Gate::new(Psk::test_key());
+        let mut gate = Gate::with_random_secret(psk()).unwrap();
+        let t0 = std::time::Instant::now();
         let mut buf = [0u8; 256];
         let mut seq = 0u32;
         let mut client = None;
         while !st.load(Ordering::SeqCst) {
             let mut out: Vec<Frame> = Vec::new();
             if let Ok((n, src)) = sock.recv_from(&mut buf) {
-                let Ok(i) = gate.inspect(&buf[..n]) else {
+                let Ok(i) = gate.inspect(&buf[..n], src, t0.elapsed()) else {
                     continue;
                 };
-                match gate.commit(&i, [seq as u8; 16]) {
-                    Action::Reply(w, _) => {
+                match gate.commit(&i, t0.elapsed()) {
+                    Action::Reply(w, _) | Action::Challenge(w) => {
                         let _ = sock.send_to(w.bytes(), src);
                     }
                     Action::Forward(v1) => {
@@ -84,6 +85,13 @@ fn peer() -> Peer {
     Peer { addr, stop, kernel }
 }
 
+/// The key of this test process's peers (generated: a key file must not
+/// hold the published test key).
+fn psk() -> Psk {
+    static KEY: std::sync::OnceLock<Psk> = std::sync::OnceLock::new();
+    KEY.get_or_init(|| Psk::generate().unwrap()).clone()
+}
+
 fn quick(key: Option<Psk>) -> Options {
     Options {
         reply_timeout: Duration::from_millis(150),
@@ -95,7 +103,7 @@ fn quick(key: Option<Psk>) -> Options {
 #[test]
 fn the_key_holder_opens_configures_and_streams() {
     let p = peer();
-    let mut vc = VirtContext::open_with(&p.addr, quick(Some(Psk::test_key()))).unwrap();
+    let mut vc = VirtContext::open_with(&p.addr, quick(Some(psk()))).unwrap();
     assert!(vc.authenticated());
     assert_ne!(vc.session_id(), 0);
     vc.set_command_type(CommandType::Impedance).unwrap();
@@ -116,7 +124,7 @@ fn the_key_holder_opens_configures_and_streams() {
 #[test]
 fn without_the_key_nothing_happens() {
     let p = peer();
-    let mut other = *Psk::test_key().as_bytes();
+    let mut other = *psk().as_bytes();
     other[5] ^= 0x10;
     let e = VirtContext::open_with(&p.addr, quick(Some(Psk::from_bytes(other))));
     assert!(
@@ -139,7 +147,7 @@ fn the_key_file_in_the_address() {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let key = dir.join("hap.key");
-    Psk::test_key().write_new(&key).unwrap();
+    psk().write_new(&key).unwrap();
     let url = format!("{}?key={}", p.addr, key.display());
     let mut vc = VirtContext::open_with(&url, quick(None)).unwrap();
     assert!(vc.authenticated());
