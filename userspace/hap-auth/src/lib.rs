@@ -1138,6 +1138,15 @@ impl Gate {
             epoch: 0,
             wire,
         };
+        let handshake = matches!(
+            wt,
+            WireType::OpenProof | WireType::Frame(FrameType::OpenSession)
+        );
+        if handshake && header.session != 0 {
+            // The handshake frames carry session 0 (the session is not
+            // granted yet); refused before any HMAC.
+            return Err(Refusal::WrongSession);
+        }
         let ty = match wt {
             WireType::Cookie => return Err(Refusal::NotARequest),
             WireType::OpenProof => {

@@ -416,6 +416,9 @@ fn a_replayed_hello_commits_nothing_and_a_replayed_proof_is_refused_everywhere()
     rig2.gate = Gate::new(Psk::test_key(), [0x6f; 32]);
     assert_eq!(rig2.datagram(proof1.bytes()), Err(Refusal::BadCookie));
     assert!(rig2.forwarded.is_empty());
+    // The handshake frames carry session 0: another id is refused unhashed.
+    let bad_open = seal_open(&Psk::test_key(), &hdr(1, 5, 0), &[0x04; NONCE_LEN]);
+    assert_eq!(rig.datagram(bad_open.bytes()), Err(Refusal::WrongSession));
     // A cookie forged without the bridge's secret is refused before the tag.
     let mut forged = proof1;
     forged.buf[HEADER_LEN + NONCE_LEN] ^= 1;
