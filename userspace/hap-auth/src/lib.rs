@@ -1645,8 +1645,12 @@ impl ClientAuth {
         }
         let (_, f) = decode(&v1[..n]).map_err(|_| Refusal::Malformed)?;
         if let Frame::Error { reason, .. } = f {
-            if matches!(reason, ERROR_REPLACED | ERROR_EXPIRED | ERROR_SEQ_EXHAUSTED) {
-                // The bridge ended the session: no further frame of it.
+            if matches!(
+                reason,
+                ERROR_NO_SESSION | ERROR_REPLACED | ERROR_EXPIRED | ERROR_SEQ_EXHAUSTED
+            ) {
+                // The bridge or the kernel ended the session: no further
+                // frame of it.
                 self.keys = None;
             }
         }
