@@ -241,6 +241,8 @@ pub const RTT_LOG_MAX: usize = 1 << 20;
 struct State {
     /// The bridge refused the authenticated handshake (reason).
     handshake_refused: Option<u32>,
+    /// Why the controller ended the session (`error` 0x100, 0x102–0x104).
+    session_ended: Option<u32>,
     session: u16,
     session_nonce: u32,
     session_ack: Option<(u16, u32)>,
@@ -311,7 +313,8 @@ impl Inner {
                     // A fresh nonce for every attempt: the first round of the
                     // handshake (the receiver answers the cookie).
                     Some(a.hello(&h, hap_auth::fresh_nonce()?))
-                } else if a.exhausted() {
+                } else if a.exhausted() || !a.established() {
+                    // Spent, or ended by the controller (`session_ended`).
                     return Err(VirtError::Closed);
                 } else {
                     a.seal(&h, frame)
@@ -501,6 +504,7 @@ impl VirtContext {
             auth: key.map(|k| Mutex::new(ClientAuth::new(k))),
             state: Mutex::new(State {
                 handshake_refused: None,
+                session_ended: None,
                 session: 0,
                 session_nonce: nonce,
                 session_ack: None,
@@ -598,6 +602,14 @@ impl VirtContext {
     /// The controller's address.
     pub fn peer(&self) -> SocketAddr {
         self.peer
+    }
+
+    /// Why the controller ended the session, if it did (protocol v2: the
+    /// `error` reason, `ERROR_NO_SESSION` or `hap_auth::ERROR_REPLACED`,
+    /// `ERROR_EXPIRED`, `ERROR_SEQ_EXHAUSTED`); requests then fail with
+    /// `VirtError::Closed`: open a new context.
+    pub fn session_ended(&self) -> Option<u32> {
+        self.inner.lock().session_ended
     }
 
     /// Session id granted by the controller.
@@ -1041,6 +1053,16 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
             } => {
                 if st.session_ack.is_some() {
                     account_seq(&mut st, h.seq);
+                }
+                let ends = matches!(
+                    reason,
+                    ERROR_NO_SESSION
+                        | hap_auth::ERROR_REPLACED
+                        | hap_auth::ERROR_EXPIRED
+                        | hap_auth::ERROR_SEQ_EXHAUSTED
+                );
+                if inner.auth.is_some() && ends {
+                    st.session_ended = Some(reason);
                 }
                 if st.replies.len() > 1024 {
                     st.replies.clear();
