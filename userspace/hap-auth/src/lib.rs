@@ -9,9 +9,16 @@
 //!   HMAC-SHA-256 tag truncated to 16 bytes (12 for `answer`) in place of
 //!   the CRC-32C. Tags are compared in constant time (`hmac`'s
 //!   `verify_truncated_left`).
+//! - Handshake (protocol.md §7.4): `open_session` → `cookie` (the bridge's
+//!   nonce, an HMAC under its per-process secret of the client's address,
+//!   a 5 s epoch and the client's nonce: no state kept) → `open_proof` (the
+//!   client's proof of the key over it) → `session_ack`. Nothing is
+//!   committed before the proof; accepted proofs are remembered for the
+//!   cookie's lifetime.
 //! - [`Gate`]: the bridge's side. Every client datagram is checked (length,
-//!   tag, session, anti-replay window) before the bridge turns it into the
-//!   v1 frame the kernel reads; every refusal has a [`Refusal`] reason.
+//!   tag, cookie, session, anti-replay window) before the bridge turns it
+//!   into the v1 frame the kernel reads; every refusal has a [`Refusal`]
+//!   reason.
 //! - [`ClientAuth`]: the client's side (handshake, sealing requests,
 //!   verifying replies).
 //!
@@ -474,7 +481,8 @@ pub enum Refusal {
     NotARequest,
     /// Length ≠ the type's v2 length.
     LengthMismatch,
-    /// No session: a request other than `open_session` without a handshake.
+    /// No live session: a request other than the handshake's without one
+    /// (or after its frame limit).
     NoSession,
     /// The tag does not verify (wrong key, forged or corrupted frame).
     BadTag,
