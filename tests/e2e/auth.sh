@@ -55,7 +55,8 @@ mkdir -p "$results"; rm -f "$results"/*
 demo="$ROOT/userspace/target/release/virtuose_demo"
 (cd "$ROOT/userspace" && cargo build --release --quiet -p virtuose_demo) || die "cannot build virtuose_demo"
 key=$(hap_keyfile "$ROOT/build/hap-test.key")
-port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+# HAP_E2E_PORT: the host's UDP port forwarded to the guest (default: a free one).
+port=${HAP_E2E_PORT:-$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')}
 max_s=$((duration * 8 + 60))
 read -r qpid qlog < <(bash "$ROOT/scripts/qemu-run.sh" --background ${kflag:-} ${HAP_E2E_QEMU:---icount} --udp "$port:5000" --key "$key" \
   --log "$results/guest.log" "$ROOT/tests/guest/auth.sh" "$period_us" $((max_s + 240)) "${HAP_E2E_FAIR_SERVER_NS:-default}" "${HAP_E2E_RT_BUDGET:-25}")
@@ -141,7 +142,7 @@ check_num "the coupled sphere followed the handle (coupling error mean, m; mean 
 check_num "coupling error max (m; 20 N / K_t)" "$(sv coupling_error_max_m)" '<' 0.0985
 fwd=$(gv proto_interface.txt forwarded); ver=$(gv proto_interface.txt verified); fin=$(gv hap_stats.txt frames_in); rcv=$(gv proto_interface.txt received)
 check_num "every frame written to rtf_in was verified (forwarded <= verified)" "$fwd" '<=' "$ver"
-check_num "module: frames in == bridge forwarded (nothing else reached it)" "$fin" '==' "$fwd"
+check_num "module: frames in == bridge forwarded + the bridge's own session closes (nothing else reached it)" "$fin" '==' "$(sum "$fwd" "$(gv proto_interface.txt kernel_closes)")"
 check_num "module: no frame rejected (nothing forged reached it)" "$(gv hap_stats.txt frames_rejected)" '==' 0
 check_num "module: exactly one session" "$(gv hap_stats.txt sessions_opened)" '==' 1
 check_num "bridge and module count the same sessions" "$(gv proto_interface.txt sessions_opened)" '==' "$(gv hap_stats.txt sessions_opened)"
@@ -150,7 +151,8 @@ rcvbuf=$(sed -n 's/^HAP-UDP .*RcvbufErrors=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\
 forged_in=$(sum "$(gv proto_interface.txt rejected_bad_tag)" "$(gv proto_interface.txt rejected_rate_limited)" "$(gv proto_interface.txt rejected_wrong_session)")
 echo "# FIGURE forged: sent $((forged + 20000)) (phase 1: 10^4, phase 2: $forged spoofed + 10^4); the guest's UDP delivered $udp datagrams to the bridge ($rcvbuf dropped for a full receive buffer); refused as forged (bad tag, rate limited, wrong session): $forged_in"
 check_num "guest: every datagram delivered to the bridge's socket was read (UDP InDatagrams = bridge received)" "$rcv" '==' "$udp"
-check_num "bridge: each datagram counted once (received = forwarded + write errors + re-acked + refused by reason)" "$rcv" '==' "$(sum "$fwd" "$(gv proto_interface.txt write_errors)" "$(gv proto_interface.txt retransmits_reacked)" "$(gv proto_interface.txt rejected)")"
+check_num "bridge: each datagram counted once (received = forwarded + write errors + re-acked + refused by reason + answered with a cookie)" "$rcv" '==' "$(sum "$fwd" "$(gv proto_interface.txt write_errors)" "$(gv proto_interface.txt retransmits_reacked)" "$(gv proto_interface.txt rejected)" "$(gv proto_interface.txt cookies_sent)")"
+check_num "bridge: the handshake's first round answered once per open_session, never more than 3x its bytes (cookie bytes <= 3 x 48 x cookies)" "$(gv proto_interface.txt cookie_bytes)" '<=' "$(awk -v c="$(gv proto_interface.txt cookies_sent)" 'BEGIN { if (c != "") print 144 * c }')"
 check_num "bridge: forged frames refused (bad tag + rate limited + wrong session)" "$forged_in" '>=' 1
 check_num "bridge: the spoofed frames from the client's own address refused at the tag during the session" "$(gv proto_interface.txt rejected_bad_tag)" '>=' 1
 check_num "bridge: the flood from another port was rate limited" "$(gv proto_interface.txt rejected_rate_limited)" '>=' 1

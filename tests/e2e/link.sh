@@ -38,7 +38,8 @@ mkdir -p "$results"; rm -f "$results"/*
 demo="$ROOT/userspace/target/release/virtuose_demo"
 (cd "$ROOT/userspace" && cargo build --release --quiet -p virtuose_demo) || die "cannot build virtuose_demo"
 
-port=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+# HAP_E2E_PORT: the host's UDP port forwarded to the guest (default: a free one).
+port=${HAP_E2E_PORT:-$(python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')}
 # Authenticated (protocol v2): the bridge gets the key, so does the test
 # client; the second client has none. HAP_E2E_INSECURE=1: the bridge and the
 # client speak the unauthenticated v1 (the bridge's --insecure).
@@ -112,16 +113,16 @@ check_num "module: exactly one session opened" "$(gv hap_stats.txt sessions_open
 check_num "bridge and module count the same sessions" "$(gv proto_interface.txt sessions_opened)" '==' "$(gv hap_stats.txt sessions_opened)"
 # Accounting, component by component.
 rcv=$(gv proto_interface.txt received); fwd=$(gv proto_interface.txt forwarded); rej=$(gv proto_interface.txt rejected)
-acct=$(sum "$(gv proto_interface.txt forwarded)" "$(gv proto_interface.txt write_errors)" "$(gv proto_interface.txt retransmits_reacked)" "$rej")
+acct=$(sum "$(gv proto_interface.txt forwarded)" "$(gv proto_interface.txt write_errors)" "$(gv proto_interface.txt retransmits_reacked)" "$rej" "$(gv proto_interface.txt cookies_sent)")
 udp=$(sed -n 's/^HAP-UDP .*InDatagrams=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)
 rcvbuf=$(sed -n 's/^HAP-UDP .*RcvbufErrors=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)
 sent_hostile=$(sed -n 's/^sent \([0-9]*\) hostile.*/\1/p' "$results/garbage.txt")
 echo "# FIGURE datagrams: the guest's UDP delivered $udp to the bridge ($rcvbuf dropped for a full receive buffer); hostile sent ${sent_hostile:-0}, client VPr sent $(sv vpr_sent): QEMU's user network delivered what the emulated guest could take"
 check_num "guest: every datagram delivered to the bridge's socket was read (UDP InDatagrams = bridge received)" "$rcv" '==' "$udp"
-check_num "bridge: each datagram counted once (received = forwarded + write errors + re-acked + refused by reason)" "$rcv" '==' "$acct"
+check_num "bridge: each datagram counted once (received = forwarded + write errors + re-acked + refused by reason + answered with a cookie)" "$rcv" '==' "$acct"
 check_num "bridge: no write error to rtf_in" "$(gv proto_interface.txt write_errors)" '==' 0
 check_num "bridge: hostile datagrams refused (bad magic, sizes, unauthenticated v1, rate limited)" "$(sum "$(gv proto_interface.txt rejected_bad_magic)" "$(gv proto_interface.txt rejected_oversize)" "$(gv proto_interface.txt rejected_undersize)")" '>=' 1
-check_num "module: every forwarded frame arrived (frames_in = bridge forwarded)" "$(gv hap_stats.txt frames_in)" '==' "$fwd"
+check_num "module: every forwarded frame arrived (frames_in = bridge forwarded + the bridge's own session closes)" "$(gv hap_stats.txt frames_in)" '==' "$(sum "$fwd" "$(gv proto_interface.txt kernel_closes)")"
 check_num "bridge: read every frame the module wrote (answers = module frames_out + replies)" "$(gv proto_interface.txt answers)" '==' "$(sum "$(gv hap_stats.txt frames_out)" "$(gv hap_stats.txt replies)")"
 check_num "bridge: sent every one to the client (sent = answers - no client - unsealed)" "$(gv proto_interface.txt sent)" '==' "$(sum "$(gv proto_interface.txt answers)" "-$(gv proto_interface.txt answers_no_client)" "-$(gv proto_interface.txt answers_unsealed)")"
 if [ "$insecure" = 1 ]; then

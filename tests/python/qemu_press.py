@@ -53,6 +53,10 @@ def main() -> int:
             origin=origin,
             on_tick=on_tick,
             clock="controller",
+            # The emulated guest answers in bursts: one force is held over
+            # up to tens of servo cycles, so the object's integration step
+            # declared to VirtMech is 30 ms (its stiffness cap m/ts²).
+            time_step=0.03,
             power_off=False,
             link_timeout=0.5,
             fade=0.5,

@@ -49,11 +49,18 @@ fn main() {
         black_box(decode(black_box(&b[..len])).is_ok());
     });
     // v2: a gate with a session (kernel session 1).
-    let mut gate = Gate::new(Psk::test_key());
+    let mut gate = Gate::new(Psk::test_key(), [7; 32]);
     let mut c = ClientAuth::new(Psk::test_key());
+    let src = std::net::SocketAddr::from(([127, 0, 0, 1], 4000));
+    let now = std::time::Duration::from_secs(10);
     let open = c.hello(&h(0), [1; NONCE_LEN]);
-    let i = gate.inspect(open.bytes()).unwrap();
-    let _ = gate.commit(&i, [2; NONCE_LEN]);
+    let i = gate.inspect(open.bytes(), src, now).unwrap();
+    if let Action::Challenge(cookie) = gate.commit(&i, now) {
+        c.open(cookie.bytes()).unwrap();
+    }
+    let proof = c.prove(&h(0)).unwrap();
+    let i = gate.inspect(proof.bytes(), src, now).unwrap();
+    let _ = gate.commit(&i, now);
     let mut ack = [0u8; MAX_FRAME_LEN];
     let al = encode(
         &FrameHeader { session: 1, ..h(1) },
@@ -72,13 +79,13 @@ fn main() {
     let v2_in = per_frame(n, |_| {
         let w = &frames[k];
         k += 1;
-        let i = gate.inspect(black_box(w.bytes())).unwrap();
-        black_box(gate.commit(&i, [0; NONCE_LEN]));
+        let i = gate.inspect(black_box(w.bytes()), src, now).unwrap();
+        black_box(gate.commit(&i, now));
     });
     let mut forged = frames[0];
     forged.buf[forged.len - 1] ^= 1;
     let v2_forged = per_frame(n, |_| {
-        black_box(gate.inspect(black_box(forged.bytes())).is_err());
+        black_box(gate.inspect(black_box(forged.bytes()), src, now).is_err());
     });
     let mut ans = [0u8; MAX_FRAME_LEN];
     let anl = encode(&h(7), &Frame::Answer(Answer::default()), &mut ans);

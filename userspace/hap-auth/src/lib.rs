@@ -9,9 +9,16 @@
 //!   HMAC-SHA-256 tag truncated to 16 bytes (12 for `answer`) in place of
 //!   the CRC-32C. Tags are compared in constant time (`hmac`'s
 //!   `verify_truncated_left`).
+//! - Handshake (protocol.md §7.4): `open_session` → `cookie` (the bridge's
+//!   nonce, an HMAC under its per-process secret of the client's address,
+//!   a 5 s epoch and the client's nonce: no state kept) → `open_proof` (the
+//!   client's proof of the key over it) → `session_ack`. Nothing is
+//!   committed before the proof; accepted proofs are remembered for the
+//!   cookie's lifetime.
 //! - [`Gate`]: the bridge's side. Every client datagram is checked (length,
-//!   tag, session, anti-replay window) before the bridge turns it into the
-//!   v1 frame the kernel reads; every refusal has a [`Refusal`] reason.
+//!   tag, cookie, session, anti-replay window) before the bridge turns it
+//!   into the v1 frame the kernel reads; every refusal has a [`Refusal`]
+//!   reason.
 //! - [`ClientAuth`]: the client's side (handshake, sealing requests,
 //!   verifying replies).
 //!
@@ -19,14 +26,18 @@
 //! re-encoded as v1 (same header fields, same payload bytes, CRC-32C).
 
 use std::io::Read;
+use std::net::{IpAddr, SocketAddr};
 use std::path::Path;
+use std::time::Duration;
 
 use hap_core::protocol::{
     decode, read_header, seal_crc, write_header, DecodeError, Frame, FrameHeader, FrameType,
-    SeqCheck, SeqWindow, CTRL_ACK_REQUEST, ERROR_REFUSED, HEADER_LEN, MAGIC, MAX_FRAME_LEN,
+    SeqCheck, SeqWindow, CTRL_ACK_REQUEST, ERROR_NO_SESSION, ERROR_REFUSED, HEADER_LEN, MAGIC,
+    MAX_FRAME_LEN,
 };
 use hmac::{Hmac, Mac};
 use sha2::Sha256;
+use zeroize::{Zeroize, ZeroizeOnDrop, Zeroizing};
 
 /// Wire version of the authenticated protocol (byte 2).
 pub const VERSION: u8 = 2;
@@ -40,11 +51,44 @@ pub const TAG_LEN: usize = 16;
 pub const ANSWER_TAG_LEN: usize = 12;
 /// Acknowledged requests whose ack the bridge keeps to answer a replayed copy.
 pub const ACK_MEMORY: usize = 8;
-/// Client nonces remembered to refuse a replayed `open_session`.
-pub const NONCE_MEMORY: usize = 4096;
+/// Frame type of the bridge's `cookie` (v2 only; the answer to `open_session`).
+pub const TYPE_COOKIE: u8 = 0x90;
+/// Frame type of the client's `open_proof` (v2 only; the answer to `cookie`).
+pub const TYPE_OPEN_PROOF: u8 = 0x10;
+/// Payload of `cookie` and `open_proof`: Nc, Ns, epoch (u32).
+pub const PROOF_PAYLOAD_LEN: usize = 2 * NONCE_LEN + 4;
+/// Whole length of `cookie` and `open_proof`.
+pub const PROOF_FRAME_LEN: usize = HEADER_LEN + PROOF_PAYLOAD_LEN + TAG_LEN;
+/// Length of a cookie epoch, seconds. A cookie is accepted in its own epoch
+/// and the next one: for at least one and at most two epochs.
+pub const COOKIE_EPOCH_S: u64 = 5;
+/// Accepted proofs the bridge remembers (each for the lifetime of its
+/// cookie, at most two epochs: 16384 in 10 s is about 1600 proven
+/// handshakes a second, three times the default `--handshake-budget`); a
+/// proof beyond that is refused (`handshake_busy`), nothing is forgotten
+/// early. About 0.7 MB when full.
+pub const PROOF_MEMORY: usize = 16384;
+/// Frames one direction of a session may carry: half the sequence-number
+/// space, so that serial-number comparison stays meaningful for the whole
+/// session. The bridge ends a session that reaches it (`ERROR_SEQ_EXHAUSTED`);
+/// the client opens a new one.
+pub const SESSION_FRAME_LIMIT: u64 = 1 << 31;
+/// The bridge's largest answer to a source not yet proven, as a multiple
+/// of the bytes received from it (QUIC's anti-amplification rule).
+pub const AMPLIFICATION_FACTOR: usize = 3;
+
+/// `error` reason: the session was replaced by a newer proven handshake.
+pub const ERROR_REPLACED: u32 = 0x102;
+/// `error` reason: the session expired (the client was silent too long).
+pub const ERROR_EXPIRED: u32 = 0x103;
+/// `error` reason: a direction reached [`SESSION_FRAME_LIMIT`]; open anew.
+pub const ERROR_SEQ_EXHAUSTED: u32 = 0x104;
 
 /// KDF labels (ASCII, no terminator).
 pub const LABEL_OPEN: &[u8] = b"hapticctrl v2 open";
+pub const LABEL_COOKIE: &[u8] = b"hapticctrl v2 cookie";
+pub const LABEL_PROOF: &[u8] = b"hapticctrl v2 proof";
+pub const LABEL_NS: &[u8] = b"hapticctrl v2 ns";
 pub const LABEL_C2S: &[u8] = b"hapticctrl v2 c2s";
 pub const LABEL_S2C: &[u8] = b"hapticctrl v2 s2c";
 pub const LABEL_REFUSE: &[u8] = b"hapticctrl v2 refuse";
@@ -56,15 +100,16 @@ pub type Key = [u8; 32];
 
 /// HMAC-SHA-256 of the concatenation of `parts` under `key`.
 pub fn hmac(key: &[u8], parts: &[&[u8]]) -> Key {
-    let mut m = <HmacSha256 as Mac>::new_from_slice(key).expect("HMAC takes any key length");
+    let mut m = keyed(key);
     for p in parts {
         m.update(p);
     }
     m.finalize().into_bytes().into()
 }
 
-/// The pre-shared key. `Debug` does not print it.
-#[derive(Clone, Copy, PartialEq, Eq)]
+/// The pre-shared key: not `Copy`, wiped from memory when dropped, never
+/// printed by `Debug`.
+#[derive(Clone, PartialEq, Eq, Zeroize, ZeroizeOnDrop)]
 pub struct Psk([u8; PSK_LEN]);
 
 impl std::fmt::Debug for Psk {
@@ -79,8 +124,10 @@ pub enum KeyError {
     Io(std::io::Error),
     /// Group or others may read or write the file.
     Permissions(u32),
-    /// Not 64 hexadecimal digits.
-    Format,
+    /// Not exactly one line of 64 lowercase hexadecimal digits.
+    Format(&'static str),
+    /// A well-formed key that must not be used.
+    Weak(&'static str),
 }
 
 impl std::fmt::Display for KeyError {
@@ -91,10 +138,15 @@ impl std::fmt::Display for KeyError {
                 f,
                 "mode {m:04o}: a key file must not be accessible to group or others (chmod 600)"
             ),
-            KeyError::Format => write!(
+            KeyError::Format(why) => write!(
                 f,
-                "not a key: expected {} hexadecimal digits (hapctl keygen)",
+                "not a key file: {why}; expected exactly {} lowercase hexadecimal digits \
+                 [0-9a-f] and one newline (hapctl keygen writes one)",
                 PSK_LEN * 2
+            ),
+            KeyError::Weak(why) => write!(
+                f,
+                "weak key refused: {why}; generate a new one with hapctl keygen"
             ),
         }
     }
@@ -102,7 +154,19 @@ impl std::fmt::Display for KeyError {
 
 impl std::error::Error for KeyError {}
 
+/// Bytes a key file may hold at most (64 digits and a newline).
+pub const KEY_FILE_LEN: usize = PSK_LEN * 2 + 1;
+
+/// Distinct byte values, and distinct differences between successive bytes,
+/// a key must have at least. 32 random bytes have about 30 of each; fewer
+/// than 16 of either happens by chance with a probability below 10⁻¹⁵
+/// (a birthday bound), and catches constant, repeated, counting and
+/// hand-typed patterns.
+pub const KEY_MIN_DISTINCT: usize = 16;
+
 impl Psk {
+    /// A key from its bytes, unchecked (tests and vectors; files go through
+    /// [`Psk::load`], which refuses weak keys).
     pub const fn from_bytes(b: [u8; PSK_LEN]) -> Psk {
         Psk(b)
     }
@@ -112,6 +176,7 @@ impl Psk {
     }
 
     /// The published test key of protocol.md §7.6: bytes 0x00, 0x01, … 0x1f.
+    /// [`Psk::load`] and [`Psk::check_strength`] refuse it.
     pub fn test_key() -> Psk {
         let mut k = [0u8; PSK_LEN];
         for (i, b) in k.iter_mut().enumerate() {
@@ -120,11 +185,17 @@ impl Psk {
         Psk(k)
     }
 
-    /// A fresh random key (from the kernel's CSPRNG).
+    /// A fresh random key (from the kernel's CSPRNG), drawn until it passes
+    /// [`Psk::check_strength`] (the first draw does but with a negligible
+    /// probability).
     pub fn generate() -> std::io::Result<Psk> {
-        let mut k = [0u8; PSK_LEN];
-        fill_random(&mut k)?;
-        Ok(Psk(k))
+        loop {
+            let mut k = Psk([0u8; PSK_LEN]);
+            fill_random(&mut k.0)?;
+            if k.check_strength().is_ok() {
+                return Ok(k);
+            }
+        }
     }
 
     /// 64 lowercase hex digits.
@@ -132,22 +203,70 @@ impl Psk {
         hex(&self.0)
     }
 
-    /// Parse 64 hex digits (surrounding white space ignored).
-    pub fn parse_hex(s: &str) -> Result<Psk, KeyError> {
-        let s = s.trim();
-        if s.len() != PSK_LEN * 2 || !s.is_ascii() {
-            return Err(KeyError::Format);
+    /// Refuse keys that are not random: all zero, the published test key,
+    /// fewer than [`KEY_MIN_DISTINCT`] distinct bytes or distinct successive
+    /// differences.
+    pub fn check_strength(&self) -> Result<(), KeyError> {
+        if self.0.iter().all(|b| *b == 0) {
+            return Err(KeyError::Weak("all zero"));
         }
-        let mut k = [0u8; PSK_LEN];
-        for (i, b) in k.iter_mut().enumerate() {
-            let d = s.get(2 * i..2 * i + 2).ok_or(KeyError::Format)?;
-            *b = u8::from_str_radix(d, 16).map_err(|_| KeyError::Format)?;
+        if *self == Psk::test_key() {
+            return Err(KeyError::Weak(
+                "the published test key of Documentation/protocol.md",
+            ));
         }
-        Ok(Psk(k))
+        let mut seen = [false; 256];
+        let mut deltas = [false; 256];
+        for (i, b) in self.0.iter().enumerate() {
+            seen[usize::from(*b)] = true;
+            if let Some(prev) = i.checked_sub(1).and_then(|j| self.0.get(j)) {
+                deltas[usize::from(b.wrapping_sub(*prev))] = true;
+            }
+        }
+        let distinct = seen.iter().filter(|s| **s).count();
+        let distinct_deltas = deltas.iter().filter(|s| **s).count();
+        seen.zeroize();
+        deltas.zeroize();
+        if distinct < KEY_MIN_DISTINCT {
+            return Err(KeyError::Weak("too few distinct bytes (low entropy)"));
+        }
+        if distinct_deltas < KEY_MIN_DISTINCT {
+            return Err(KeyError::Weak(
+                "a regular pattern (too few distinct steps between bytes)",
+            ));
+        }
+        Ok(())
     }
 
-    /// Read a key file: 64 hex digits, and on Unix a mode without any group
-    /// or other permission (like ssh's private keys).
+    /// Parse a key file's content: exactly 64 lowercase hex digits, then
+    /// one `\n` (or nothing). No white space, sign, prefix or upper case.
+    /// Weak keys are refused.
+    pub fn parse_file(s: &[u8]) -> Result<Psk, KeyError> {
+        let digits = match s.len() {
+            n if n == PSK_LEN * 2 => s,
+            n if n == KEY_FILE_LEN && s.last() == Some(&b'\n') => &s[..PSK_LEN * 2],
+            n if n < PSK_LEN * 2 => return Err(KeyError::Format("too short")),
+            _ => return Err(KeyError::Format("too long, or not one line")),
+        };
+        let nibble = |c: u8| match c {
+            b'0'..=b'9' => Some(c - b'0'),
+            b'a'..=b'f' => Some(c - b'a' + 10),
+            _ => None,
+        };
+        let mut k = Psk([0u8; PSK_LEN]);
+        for (i, b) in k.0.iter_mut().enumerate() {
+            let (Some(hi), Some(lo)) = (nibble(digits[2 * i]), nibble(digits[2 * i + 1])) else {
+                return Err(KeyError::Format("a character other than 0-9 a-f"));
+            };
+            *b = (hi << 4) | lo;
+        }
+        k.check_strength()?;
+        Ok(k)
+    }
+
+    /// Read a key file ([`Psk::parse_file`]), and on Unix a mode without any
+    /// group or other permission (like ssh's private keys). The buffer that
+    /// held the digits is wiped.
     pub fn load(path: &Path) -> Result<Psk, KeyError> {
         let mut f = std::fs::File::open(path).map_err(KeyError::Io)?;
         #[cfg(unix)]
@@ -158,12 +277,17 @@ impl Psk {
                 return Err(KeyError::Permissions(mode));
             }
         }
-        let mut s = String::new();
-        f.by_ref()
-            .take(256)
-            .read_to_string(&mut s)
-            .map_err(|_| KeyError::Format)?;
-        Psk::parse_hex(&s)
+        let mut buf = Zeroizing::new([0u8; KEY_FILE_LEN + 1]);
+        let mut n = 0;
+        while n < buf.len() {
+            match f.read(&mut buf[n..]) {
+                Ok(0) => break,
+                Ok(k) => n += k,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(KeyError::Io(e)),
+            }
+        }
+        Psk::parse_file(&buf[..n])
     }
 
     /// Write a new key file with mode 0600; fails if `path` exists.
@@ -177,7 +301,9 @@ impl Psk {
             o.mode(0o600);
         }
         let mut f = o.open(path)?;
-        writeln!(f, "{}", self.to_hex())?;
+        let mut line = Zeroizing::new(self.to_hex().into_bytes());
+        line.push(b'\n');
+        f.write_all(&line)?;
         f.sync_all()
     }
 }
@@ -204,10 +330,59 @@ pub fn open_key(psk: &Psk) -> Key {
     hmac(&psk.0, &[LABEL_OPEN])
 }
 
-/// Key of the bridge's refusal of an `open_session` (bound to its nonce):
+/// Key of the bridge's `cookie` answering the `open_session` with nonce Nc:
+/// HMAC(PSK, "hapticctrl v2 cookie" ‖ Nc).
+pub fn cookie_key(psk: &Psk, nc: &[u8; NONCE_LEN]) -> Key {
+    hmac(&psk.0, &[LABEL_COOKIE, nc])
+}
+
+/// Key of the client's `open_proof`: HMAC(PSK, "hapticctrl v2 proof").
+pub fn proof_key(psk: &Psk) -> Key {
+    hmac(&psk.0, &[LABEL_PROOF])
+}
+
+/// Key of the bridge's refusal of a handshake (bound to its nonce):
 /// HMAC(PSK, "hapticctrl v2 refuse" ‖ Nc).
 pub fn refuse_key(psk: &Psk, nc: &[u8; NONCE_LEN]) -> Key {
     hmac(&psk.0, &[LABEL_REFUSE, nc])
+}
+
+/// The 18 bytes of a source address the cookie is bound to: the IPv6
+/// address (an IPv4 one mapped, `::ffff:a.b.c.d`) and the port, big-endian.
+pub fn address_bytes(a: &SocketAddr) -> [u8; 18] {
+    let ip = match a.ip() {
+        IpAddr::V4(v4) => v4.to_ipv6_mapped(),
+        IpAddr::V6(v6) => v6,
+    };
+    let mut out = [0u8; 18];
+    out[..16].copy_from_slice(&ip.octets());
+    out[16..].copy_from_slice(&a.port().to_be_bytes());
+    out
+}
+
+/// The bridge's nonce for a handshake, which is also its cookie:
+/// the first 16 bytes of HMAC(S, "hapticctrl v2 ns" ‖ epoch ‖ address ‖ Nc)
+/// under the bridge's secret S (random, drawn at start, never stored).
+/// Only the bridge can compute it; it binds the client's address, a coarse
+/// time and the client's nonce.
+pub fn cookie_nonce(
+    secret: &[u8; 32],
+    epoch: u32,
+    src: &SocketAddr,
+    nc: &[u8; NONCE_LEN],
+) -> [u8; NONCE_LEN] {
+    let full = hmac(
+        secret,
+        &[LABEL_NS, &epoch.to_be_bytes(), &address_bytes(src), nc],
+    );
+    let mut ns = [0u8; NONCE_LEN];
+    ns.copy_from_slice(&full[..NONCE_LEN]);
+    ns
+}
+
+/// The cookie epoch of a time `now` on the bridge's monotonic clock.
+pub fn epoch_of(now: Duration) -> u32 {
+    (now.as_secs() / COOKIE_EPOCH_S) as u32
 }
 
 /// An HMAC-SHA-256 instance already keyed (its inner and outer pads
@@ -238,6 +413,13 @@ impl Eq for SessionKeys {}
 impl std::fmt::Debug for SessionKeys {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str("SessionKeys(..)")
+    }
+}
+
+impl Drop for SessionKeys {
+    fn drop(&mut self) {
+        self.c2s.zeroize();
+        self.s2c.zeroize();
     }
 }
 
@@ -285,7 +467,7 @@ pub const fn frame_len(ty: FrameType) -> usize {
 pub enum Refusal {
     /// More than 90 bytes.
     Oversize,
-    /// Fewer than the smallest frame.
+    /// Fewer than 20 bytes (a header and a CRC: no frame of either version).
     Undersize,
     /// Not "HC".
     BadMagic,
@@ -299,13 +481,26 @@ pub enum Refusal {
     NotARequest,
     /// Length ≠ the type's v2 length.
     LengthMismatch,
-    /// No session: a request other than `open_session` without a handshake.
+    /// No live session: a request other than the handshake's without one
+    /// (or after its frame limit).
     NoSession,
     /// The tag does not verify (wrong key, forged or corrupted frame).
     BadTag,
-    /// An `open_session` whose nonce was already used.
+    /// An `open_proof` whose proof was already accepted (a replay inside
+    /// its cookie's lifetime).
     HandshakeReplay,
-    /// A verified frame carrying another session's id.
+    /// An `open_proof` whose cookie is not the bridge's for this source
+    /// address and nonce, or whose epoch is over (older than its lifetime,
+    /// or from before the bridge started).
+    BadCookie,
+    /// A proven `open_proof` the bridge cannot remember (its proof memory
+    /// is full of proofs still alive): answered with `error` 0x101.
+    HandshakeBusy,
+    /// Dropped unexamined: the global budget of `open_session` datagrams
+    /// per second is spent.
+    HandshakeBudget,
+    /// A frame carrying another session id than the open session's
+    /// (refused before its tag is computed).
     WrongSession,
     /// A sequence number already accepted in this session.
     Replay,
@@ -320,7 +515,7 @@ pub enum Refusal {
 }
 
 impl Refusal {
-    pub const COUNT: usize = 17;
+    pub const COUNT: usize = 20;
     pub const ALL: [Refusal; Refusal::COUNT] = [
         Refusal::Oversize,
         Refusal::Undersize,
@@ -333,6 +528,9 @@ impl Refusal {
         Refusal::NoSession,
         Refusal::BadTag,
         Refusal::HandshakeReplay,
+        Refusal::BadCookie,
+        Refusal::HandshakeBusy,
+        Refusal::HandshakeBudget,
         Refusal::WrongSession,
         Refusal::Replay,
         Refusal::TooOld,
@@ -359,6 +557,9 @@ impl Refusal {
             Refusal::NoSession => "no_session",
             Refusal::BadTag => "bad_tag",
             Refusal::HandshakeReplay => "handshake_replay",
+            Refusal::BadCookie => "bad_cookie",
+            Refusal::HandshakeBusy => "handshake_busy",
+            Refusal::HandshakeBudget => "handshake_budget",
             Refusal::WrongSession => "wrong_session",
             Refusal::Replay => "replay",
             Refusal::TooOld => "too_old",
@@ -439,6 +640,56 @@ fn seal_with(mac: &HmacSha256, ty: FrameType, h: &FrameHeader, payload: &[u8]) -
 /// The client's `open_session` (session 0, payload Nc) under [`open_key`].
 pub fn seal_open(psk: &Psk, h: &FrameHeader, nc: &[u8; NONCE_LEN]) -> Wire {
     seal_raw(&open_key(psk), FrameType::OpenSession, h, nc)
+}
+
+/// A handshake frame of a v2-only type (`cookie`, `open_proof`): the
+/// header with `type_byte`, Nc, Ns, the epoch, a 16-byte tag under `key`.
+fn seal_proof_frame(
+    key: &Key,
+    type_byte: u8,
+    h: &FrameHeader,
+    nc: &[u8; NONCE_LEN],
+    ns: &[u8; NONCE_LEN],
+    epoch: u32,
+) -> Wire {
+    let mut w = Wire {
+        buf: [0u8; MAX_FRAME_LEN],
+        len: PROOF_FRAME_LEN,
+    };
+    // The header layout of every frame; byte 3 is then this v2-only type.
+    write_header(&mut w.buf, VERSION, FrameType::OpenSession, h);
+    w.buf[3] = type_byte;
+    w.buf[HEADER_LEN..HEADER_LEN + NONCE_LEN].copy_from_slice(nc);
+    w.buf[HEADER_LEN + NONCE_LEN..HEADER_LEN + 2 * NONCE_LEN].copy_from_slice(ns);
+    let body = HEADER_LEN + PROOF_PAYLOAD_LEN;
+    w.buf[body - 4..body].copy_from_slice(&epoch.to_be_bytes());
+    let t = tag(&keyed(key), &w.buf[..body], TAG_LEN);
+    w.buf[body..body + TAG_LEN].copy_from_slice(&t);
+    w
+}
+
+/// The bridge's `cookie` (session 0, seq 0, timestamp 0): Nc echoed, its
+/// nonce Ns (the cookie), the epoch; under [`cookie_key`].
+pub fn seal_cookie(
+    psk: &Psk,
+    h: &FrameHeader,
+    nc: &[u8; NONCE_LEN],
+    ns: &[u8; NONCE_LEN],
+    epoch: u32,
+) -> Wire {
+    seal_proof_frame(&cookie_key(psk, nc), TYPE_COOKIE, h, nc, ns, epoch)
+}
+
+/// The client's `open_proof` (session 0): Nc, the cookie's Ns and epoch;
+/// under [`proof_key`].
+pub fn seal_open_proof(
+    psk: &Psk,
+    h: &FrameHeader,
+    nc: &[u8; NONCE_LEN],
+    ns: &[u8; NONCE_LEN],
+    epoch: u32,
+) -> Wire {
+    seal_proof_frame(&proof_key(psk), TYPE_OPEN_PROOF, h, nc, ns, epoch)
 }
 
 /// A client request other than `open_session`, under the session's c2s key:
@@ -539,37 +790,73 @@ fn v1_from_payload(ty: FrameType, h: &FrameHeader, payload: &[u8]) -> Option<Wir
     Some(w)
 }
 
+/// The type of a v2 datagram: one of hap-core's, or a v2-only handshake type.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum WireType {
+    Frame(FrameType),
+    Cookie,
+    OpenProof,
+}
+
 /// First checks common to both sides: size, magic, version, type, length.
-/// Returns the type.
-fn precheck(b: &[u8], insecure_v1_ok: bool) -> Result<FrameType, Refusal> {
+fn precheck(b: &[u8]) -> Result<WireType, Refusal> {
     if b.len() > MAX_FRAME_LEN {
         return Err(Refusal::Oversize);
     }
+    // Shorter than a v1 header and CRC: no frame of either version. (The
+    // smallest v2 frame is 32 bytes; a shorter v2 datagram is refused as
+    // `length_mismatch` below, a v1 frame as `unauthenticated_v1`.)
     if b.len() < HEADER_LEN + 4 {
         return Err(Refusal::Undersize);
     }
     if b[0..2] != MAGIC {
         return Err(Refusal::BadMagic);
     }
-    if b[2] == hap_core::protocol::VERSION && !insecure_v1_ok {
+    if b[2] == hap_core::protocol::VERSION {
         return Err(Refusal::Unauthenticated);
     }
     if b[2] != VERSION {
         return Err(Refusal::BadVersion);
     }
-    let ty = FrameType::from_u8(b[3]).ok_or(Refusal::UnknownType)?;
-    if b.len() != frame_len(ty) {
+    let (ty, len) = match b[3] {
+        TYPE_COOKIE => (WireType::Cookie, PROOF_FRAME_LEN),
+        TYPE_OPEN_PROOF => (WireType::OpenProof, PROOF_FRAME_LEN),
+        t => {
+            let ty = FrameType::from_u8(t).ok_or(Refusal::UnknownType)?;
+            (WireType::Frame(ty), frame_len(ty))
+        }
+    };
+    if b.len() != len {
         return Err(Refusal::LengthMismatch);
     }
     Ok(ty)
 }
 
-/// What kind of request a verified datagram is (for the bridge's session
-/// pinning).
+fn nonce_at(b: &[u8], at: usize) -> [u8; NONCE_LEN] {
+    let mut n = [0u8; NONCE_LEN];
+    n.copy_from_slice(&b[at..at + NONCE_LEN]);
+    n
+}
+
+/// Constant-time equality of two nonces.
+fn same_nonce(a: &[u8; NONCE_LEN], b: &[u8; NONCE_LEN]) -> bool {
+    a.iter()
+        .zip(b.iter())
+        .fold(0u8, |acc, (x, y)| acc | (x ^ y))
+        == 0
+}
+
+/// What kind of client datagram passed the gate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
-    Open,
+    /// `open_session`: answered with a `cookie`, nothing committed.
+    Hello,
+    /// `open_proof` with a valid cookie and tag, not seen before: commits a
+    /// session.
+    Proof,
+    /// `close_session` of the open session.
     Close,
+    /// Any other request of the open session.
     Other,
 }
 
@@ -579,8 +866,11 @@ pub enum Kind {
 pub struct Inspected {
     pub kind: Kind,
     pub header: FrameHeader,
+    pub src: SocketAddr,
     ty: FrameType,
     nc: [u8; NONCE_LEN],
+    ns: [u8; NONCE_LEN],
+    epoch: u32,
     wire: Wire,
 }
 
@@ -589,21 +879,84 @@ pub struct Inspected {
 pub enum Action {
     /// Write this v1 frame to the kernel's input device.
     Forward(Wire),
+    /// Send this v2 frame back to the source, write nothing: the `cookie`
+    /// answering an `open_session` (no state kept; never larger than
+    /// [`AMPLIFICATION_FACTOR`] times the datagram).
+    Challenge(Wire),
     /// Send this v2 frame back to the client, write nothing (a replayed
     /// acknowledged request: its ack again; an authenticated but malformed
-    /// request: `error` with the decode reason).
+    /// request: `error` with the decode reason; a proven handshake the
+    /// bridge cannot remember: `error` 0x101).
     Reply(Wire, Refusal),
+}
+
+/// Why the bridge ended a session on its own.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EndReason {
+    /// A newer proven handshake took the session ([`ERROR_REPLACED`]).
+    Replaced,
+    /// The client was silent longer than the session timeout ([`ERROR_EXPIRED`]).
+    Expired,
+    /// A direction reached [`SESSION_FRAME_LIMIT`] ([`ERROR_SEQ_EXHAUSTED`]).
+    SeqExhausted,
+}
+
+impl EndReason {
+    /// The `error` reason the client is told.
+    pub const fn error_reason(self) -> u32 {
+        match self {
+            EndReason::Replaced => ERROR_REPLACED,
+            EndReason::Expired => ERROR_EXPIRED,
+            EndReason::SeqExhausted => ERROR_SEQ_EXHAUSTED,
+        }
+    }
+}
+
+/// What the bridge sends when it ends a session itself.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ended {
+    /// `error` with the reason, under the ended session's s2c key, for its
+    /// client (session id the ended one's, seq 0, timestamp 0).
+    pub notice: Wire,
+    /// A v1 `close_session` for the kernel (the session's id, the next
+    /// sequence number after the newest accepted, no ack request), so that
+    /// PROTO_IN closes the session too; `None` if the kernel had not
+    /// granted it yet.
+    pub kernel_close: Option<Wire>,
 }
 
 /// Counters of the gate (the bridge renders them).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct GateCounters {
     pub verified: u64,
+    /// Proven handshakes committed.
     pub handshakes: u64,
+    /// `cookie` answers sent (one per authenticated `open_session`).
+    pub cookies: u64,
     /// Replayed acknowledged requests answered with their ack again.
     pub reacked: u64,
-    /// Replies the kernel sent that could not be sealed (no session keys).
+    /// Replies the kernel sent that were not sealed (no session, another
+    /// session's id, or the session ended).
     pub replies_unsealed: u64,
+    /// Sessions the bridge ended itself, by reason.
+    pub ended_replaced: u64,
+    pub ended_expired: u64,
+    pub ended_seq_exhausted: u64,
+}
+
+/// Where a session is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum SessionState {
+    /// Proven and forwarded; the kernel's `session_ack` not yet seen.
+    Granting,
+    /// The kernel granted it (id known).
+    Open,
+    /// The client closed it (`close_session` forwarded, with this sequence
+    /// number): only the kernel's ack of that close is still sealed.
+    Closing(u32),
+    /// Ended (closed and acknowledged, or ended by the bridge): nothing is
+    /// sealed any more.
+    Ended,
 }
 
 #[derive(Clone, Debug)]
@@ -615,21 +968,39 @@ struct GateSession {
     id: u16,
     kernel_nonce: u32,
     window: SeqWindow,
-    closed: bool,
+    state: SessionState,
+    /// Frames accepted from the client and sealed for it in this session.
+    c2s_frames: u64,
+    s2c_frames: u64,
     /// Sealed acks of the last acknowledged requests: (seq, type, bytes).
     acks: [Option<(u32, FrameType, Wire)>; ACK_MEMORY],
     acks_next: usize,
 }
 
+/// One accepted proof, remembered until its cookie's epoch is over.
+#[derive(Clone, Copy, Debug)]
+struct SeenProof {
+    nc: [u8; NONCE_LEN],
+    ns: [u8; NONCE_LEN],
+    epoch: u32,
+}
+
 /// The bridge's authenticator: one session (the kernel has one), the PSK,
-/// the nonces already used.
+/// the bridge's cookie secret, the proofs accepted in the cookies' lifetime.
 pub struct Gate {
     psk: Psk,
     k_open: HmacSha256,
+    k_proof: HmacSha256,
+    secret: Zeroizing<[u8; 32]>,
     session: Option<GateSession>,
-    nonces: Vec<[u8; NONCE_LEN]>,
-    nonces_next: usize,
+    /// Accepted proofs in the order they came (to forget them when their
+    /// cookie dies) and as a set (to look one up).
+    proofs: std::collections::VecDeque<SeenProof>,
+    proof_set: std::collections::HashSet<([u8; NONCE_LEN], [u8; NONCE_LEN])>,
     kernel_nonce: u32,
+    frame_limit: u64,
+    /// The session a proven handshake replaced, until the bridge takes it.
+    replaced: Option<Ended>,
     pub counters: GateCounters,
 }
 
@@ -641,66 +1012,194 @@ impl std::fmt::Debug for Gate {
     }
 }
 
+/// Is a cookie of `epoch` alive at epoch `now`? Its own epoch and the next.
+fn epoch_alive(epoch: u32, now: u32) -> bool {
+    epoch == now || epoch.checked_add(1) == Some(now)
+}
+
 impl Gate {
-    pub fn new(psk: Psk) -> Gate {
+    /// A gate with the cookie secret `secret` (tests and vectors; the bridge
+    /// uses [`Gate::with_random_secret`]).
+    pub fn new(psk: Psk, secret: [u8; 32]) -> Gate {
         Gate {
             k_open: keyed(&open_key(&psk)),
+            k_proof: keyed(&proof_key(&psk)),
             psk,
+            secret: Zeroizing::new(secret),
             session: None,
-            nonces: Vec::new(),
-            nonces_next: 0,
+            proofs: std::collections::VecDeque::new(),
+            proof_set: std::collections::HashSet::new(),
             kernel_nonce: 0,
+            frame_limit: SESSION_FRAME_LIMIT,
+            replaced: None,
             counters: GateCounters::default(),
         }
     }
 
-    /// The session id the kernel granted (0: none or not yet).
-    pub fn session_id(&self) -> u16 {
+    /// A gate with a fresh random cookie secret: every cookie of an earlier
+    /// process is refused.
+    pub fn with_random_secret(psk: Psk) -> std::io::Result<Gate> {
+        let mut s = Zeroizing::new([0u8; 32]);
+        fill_random(&mut s[..])?;
+        Ok(Gate::new(psk, *s))
+    }
+
+    /// Lower the frames a session may carry per direction (tests of the
+    /// session end at [`SESSION_FRAME_LIMIT`]).
+    pub fn set_frame_limit(&mut self, frames: u64) {
+        self.frame_limit = frames.clamp(1, SESSION_FRAME_LIMIT);
+    }
+
+    fn live(&self) -> Option<&GateSession> {
         self.session
             .as_ref()
-            .filter(|s| !s.closed)
-            .map_or(0, |s| s.id)
+            .filter(|s| matches!(s.state, SessionState::Granting | SessionState::Open))
     }
 
-    /// Forget the session (the bridge's session expired).
-    pub fn end_session(&mut self) {
-        if let Some(s) = self.session.as_mut() {
-            s.closed = true;
+    /// The session id the kernel granted (0: none or not yet).
+    pub fn session_id(&self) -> u16 {
+        self.live().map_or(0, |s| s.id)
+    }
+
+    /// End the session on the bridge's decision: the client's notice and
+    /// the kernel's `close_session`. `None` if no session is live.
+    pub fn end_session(&mut self, why: EndReason) -> Option<Ended> {
+        let s = self
+            .session
+            .as_mut()
+            .filter(|s| matches!(s.state, SessionState::Granting | SessionState::Open))?;
+        s.state = SessionState::Ended;
+        let c = &mut self.counters;
+        match why {
+            EndReason::Replaced => c.ended_replaced = c.ended_replaced.saturating_add(1),
+            EndReason::Expired => c.ended_expired = c.ended_expired.saturating_add(1),
+            EndReason::SeqExhausted => {
+                c.ended_seq_exhausted = c.ended_seq_exhausted.saturating_add(1)
+            }
+        }
+        let h = FrameHeader {
+            control: 0,
+            session: s.id,
+            seq: 0,
+            timestamp_us: 0,
+        };
+        let mut p = [0u8; 8];
+        p[..4].copy_from_slice(&why.error_reason().to_be_bytes());
+        p[4..].copy_from_slice(&s.window.newest().unwrap_or(0).to_be_bytes());
+        let notice = seal_with(&s.keys.s2c_mac, FrameType::Error, &h, &p);
+        let kernel_close = (s.id != 0)
+            .then(|| {
+                let h = FrameHeader {
+                    control: 0,
+                    session: s.id,
+                    seq: s.window.newest().unwrap_or(0).wrapping_add(1),
+                    timestamp_us: 0,
+                };
+                v1_from_payload(FrameType::CloseSession, &h, &[])
+            })
+            .flatten();
+        Some(Ended {
+            notice,
+            kernel_close,
+        })
+    }
+
+    /// The session the last committed handshake replaced (its client's
+    /// notice; the kernel's new `open_session` closes it there).
+    pub fn take_replaced(&mut self) -> Option<Ended> {
+        self.replaced.take()
+    }
+
+    /// Forget the proofs whose cookie is dead at epoch `now`.
+    fn prune_proofs(&mut self, now: u32) {
+        while self
+            .proofs
+            .front()
+            .is_some_and(|p| !epoch_alive(p.epoch, now))
+        {
+            if let Some(p) = self.proofs.pop_front() {
+                self.proof_set.remove(&(p.nc, p.ns));
+            }
         }
     }
 
-    /// Check a client datagram without changing anything: size, version,
-    /// type, session id, anti-replay window, then the tag (constant time). The
-    /// handshake nonce is checked against the nonces already used.
-    pub fn inspect(&self, b: &[u8]) -> Result<Inspected, Refusal> {
-        let ty = precheck(b, false)?;
-        if !ty.is_request() {
-            return Err(Refusal::NotARequest);
-        }
+    /// Check a client datagram from `src` at `now` (the bridge's monotonic
+    /// clock) without changing anything: size, version, type; for
+    /// `open_session` the tag; for `open_proof` the epoch, the cookie, the
+    /// tag and that the proof is new; for a request the session id, the
+    /// anti-replay window, then the tag (constant time).
+    pub fn inspect(&self, b: &[u8], src: SocketAddr, now: Duration) -> Result<Inspected, Refusal> {
+        let wt = precheck(b)?;
         let header = read_header(b).ok_or(Refusal::Undersize)?;
         let mut wire = Wire {
             buf: [0u8; MAX_FRAME_LEN],
             len: b.len(),
         };
         wire.buf[..b.len()].copy_from_slice(b);
+        let mut i = Inspected {
+            kind: Kind::Other,
+            header,
+            src,
+            ty: FrameType::OpenSession,
+            nc: [0u8; NONCE_LEN],
+            ns: [0u8; NONCE_LEN],
+            epoch: 0,
+            wire,
+        };
+        let handshake = matches!(
+            wt,
+            WireType::OpenProof | WireType::Frame(FrameType::OpenSession)
+        );
+        if handshake && header.session != 0 {
+            // The handshake frames carry session 0 (the session is not
+            // granted yet); refused before any HMAC.
+            return Err(Refusal::WrongSession);
+        }
+        let ty = match wt {
+            WireType::Cookie => return Err(Refusal::NotARequest),
+            WireType::OpenProof => {
+                // Cheapest first: the epoch (no hash), the cookie (one HMAC
+                // under the bridge's secret), the tag (under the PSK), then
+                // the memory of accepted proofs.
+                let now_epoch = epoch_of(now);
+                let epoch = be32(b, HEADER_LEN + 2 * NONCE_LEN);
+                if !epoch_alive(epoch, now_epoch) {
+                    return Err(Refusal::BadCookie);
+                }
+                i.nc = nonce_at(b, HEADER_LEN);
+                i.ns = nonce_at(b, HEADER_LEN + NONCE_LEN);
+                i.epoch = epoch;
+                let expect = cookie_nonce(&self.secret, epoch, &src, &i.nc);
+                if !same_nonce(&expect, &i.ns) {
+                    return Err(Refusal::BadCookie);
+                }
+                if !verify(&self.k_proof, b, TAG_LEN) {
+                    return Err(Refusal::BadTag);
+                }
+                // A remembered proof is alive: its epoch is this one's
+                // (Ns binds the epoch), which was just checked.
+                if self.proof_set.contains(&(i.nc, i.ns)) {
+                    return Err(Refusal::HandshakeReplay);
+                }
+                i.kind = Kind::Proof;
+                return Ok(i);
+            }
+            WireType::Frame(ty) => ty,
+        };
+        if !ty.is_request() {
+            return Err(Refusal::NotARequest);
+        }
+        i.ty = ty;
         if ty == FrameType::OpenSession {
             if !verify(&self.k_open, b, TAG_LEN) {
                 return Err(Refusal::BadTag);
             }
-            let mut nc = [0u8; NONCE_LEN];
-            nc.copy_from_slice(&b[HEADER_LEN..HEADER_LEN + NONCE_LEN]);
-            if self.nonces.contains(&nc) {
-                return Err(Refusal::HandshakeReplay);
-            }
-            return Ok(Inspected {
-                kind: Kind::Open,
-                header,
-                ty,
-                nc,
-                wire,
-            });
+            i.nc = nonce_at(b, HEADER_LEN);
+            i.epoch = epoch_of(now);
+            i.kind = Kind::Hello;
+            return Ok(i);
         }
-        let Some(s) = self.session.as_ref().filter(|s| !s.closed) else {
+        let Some(s) = self.live() else {
             return Err(Refusal::NoSession);
         };
         // The session id and the sequence number are sent in clear: what
@@ -709,6 +1208,11 @@ impl Gate {
         // refusal tells an onlooker nothing the header did not.
         if header.session != s.id || s.id == 0 {
             return Err(Refusal::WrongSession);
+        }
+        if s.c2s_frames >= self.frame_limit {
+            // The bridge ends such a session at once (`exhausted`); until
+            // then nothing more of it is accepted.
+            return Err(Refusal::NoSession);
         }
         match s.window.check(header.seq) {
             SeqCheck::Newer | SeqCheck::InWindow => {}
@@ -727,58 +1231,44 @@ impl Gate {
         if !verify(&s.keys.c2s_mac, b, TAG_LEN) {
             return Err(Refusal::BadTag);
         }
-        Ok(Inspected {
-            kind: if ty == FrameType::CloseSession {
-                Kind::Close
-            } else {
-                Kind::Other
-            },
-            header,
-            ty,
-            nc: [0u8; NONCE_LEN],
-            wire,
-        })
+        i.kind = if ty == FrameType::CloseSession {
+            Kind::Close
+        } else {
+            Kind::Other
+        };
+        Ok(i)
     }
 
-    /// Commit an inspected datagram: for `open_session`, remember its nonce,
-    /// draw the server nonce `ns` and derive the session keys; for a request,
-    /// advance the window. Returns the v1 frame to forward, or the reply.
-    pub fn commit(&mut self, i: &Inspected, ns: [u8; NONCE_LEN]) -> Action {
+    /// Commit an inspected datagram. `open_session`: the `cookie` to send
+    /// back, nothing kept. `open_proof`: remember the proof, derive the
+    /// session keys from Nc and the cookie's Ns, replace the session, and
+    /// forward a v1 `open_session`. A request: advance the window, forward
+    /// its v1 frame (or reply). The caller ends a live session first
+    /// ([`Gate::end_session`] with [`EndReason::Replaced`]) to tell its
+    /// client.
+    pub fn commit(&mut self, i: &Inspected, now: Duration) -> Action {
         self.counters.verified = self.counters.verified.saturating_add(1);
         let b = i.wire.bytes();
-        if i.kind == Kind::Open {
-            if self.nonces.len() < NONCE_MEMORY {
-                self.nonces.push(i.nc);
-            } else if let Some(slot) = self.nonces.get_mut(self.nonces_next) {
-                *slot = i.nc;
+        match i.kind {
+            Kind::Hello => {
+                let ns = cookie_nonce(&self.secret, i.epoch, &i.src, &i.nc);
+                let h = FrameHeader {
+                    control: 0,
+                    session: 0,
+                    seq: 0,
+                    timestamp_us: 0,
+                };
+                self.counters.cookies = self.counters.cookies.saturating_add(1);
+                return Action::Challenge(seal_cookie(&self.psk, &h, &i.nc, &ns, i.epoch));
             }
-            self.nonces_next = (self.nonces_next + 1) % NONCE_MEMORY;
-            self.kernel_nonce = self.kernel_nonce.wrapping_add(1);
-            let mut window = SeqWindow::new();
-            window.reset(i.header.seq);
-            self.session = Some(GateSession {
-                nc: i.nc,
-                ns,
-                keys: SessionKeys::derive(&self.psk, &i.nc, &ns),
-                id: 0,
-                kernel_nonce: self.kernel_nonce,
-                window,
-                closed: false,
-                acks: [None; ACK_MEMORY],
-                acks_next: 0,
-            });
-            self.counters.handshakes = self.counters.handshakes.saturating_add(1);
-            let h = FrameHeader {
-                session: 0,
-                ..i.header
-            };
-            let v1 = v1_from_payload(FrameType::OpenSession, &h, &self.kernel_nonce.to_be_bytes());
-            return match v1 {
-                Some(w) => Action::Forward(w),
-                None => self.malformed_reply(i, DecodeError::LengthMismatch),
-            };
+            Kind::Proof => return self.commit_proof(i, now),
+            Kind::Close | Kind::Other => {}
         }
-        let Some(s) = self.session.as_mut() else {
+        let Some(s) = self
+            .session
+            .as_mut()
+            .filter(|s| matches!(s.state, SessionState::Granting | SessionState::Open))
+        else {
             // inspect() saw a session; commit() right after cannot miss it.
             return self.malformed_reply(i, DecodeError::TooShort);
         };
@@ -795,6 +1285,10 @@ impl Gate {
             }
         }
         s.window.accept(i.header.seq);
+        s.c2s_frames += 1;
+        if i.kind == Kind::Close {
+            s.state = SessionState::Closing(i.header.seq);
+        }
         let end = b.len().saturating_sub(TAG_LEN);
         let v1 = v1_from_payload(i.ty, &i.header, b.get(HEADER_LEN..end).unwrap_or(&[]));
         let Some(v1) = v1 else {
@@ -803,6 +1297,58 @@ impl Gate {
         match decode(v1.bytes()) {
             Ok(_) => Action::Forward(v1),
             Err(e) => self.malformed_reply(i, e),
+        }
+    }
+
+    fn commit_proof(&mut self, i: &Inspected, now: Duration) -> Action {
+        let now_epoch = epoch_of(now);
+        self.prune_proofs(now_epoch);
+        if self.proofs.len() >= PROOF_MEMORY {
+            let h = FrameHeader {
+                control: 0,
+                session: 0,
+                seq: 0,
+                timestamp_us: 0,
+            };
+            return Action::Reply(
+                seal_refusal(&self.psk, &i.nc, &h, i.header.seq),
+                Refusal::HandshakeBusy,
+            );
+        }
+        if self.live().is_some() {
+            self.replaced = self.end_session(EndReason::Replaced);
+        }
+        self.proofs.push_back(SeenProof {
+            nc: i.nc,
+            ns: i.ns,
+            epoch: i.epoch,
+        });
+        self.proof_set.insert((i.nc, i.ns));
+        self.kernel_nonce = self.kernel_nonce.wrapping_add(1);
+        let mut window = SeqWindow::new();
+        window.reset(i.header.seq);
+        self.session = Some(GateSession {
+            nc: i.nc,
+            ns: i.ns,
+            keys: SessionKeys::derive(&self.psk, &i.nc, &i.ns),
+            id: 0,
+            kernel_nonce: self.kernel_nonce,
+            window,
+            state: SessionState::Granting,
+            c2s_frames: 1,
+            s2c_frames: 0,
+            acks: [None; ACK_MEMORY],
+            acks_next: 0,
+        });
+        self.counters.handshakes = self.counters.handshakes.saturating_add(1);
+        let h = FrameHeader {
+            control: 0,
+            session: 0,
+            ..i.header
+        };
+        match v1_from_payload(FrameType::OpenSession, &h, &self.kernel_nonce.to_be_bytes()) {
+            Some(w) => Action::Forward(w),
+            None => self.malformed_reply(i, DecodeError::LengthMismatch),
         }
     }
 
@@ -817,62 +1363,89 @@ impl Gate {
         p[..4].copy_from_slice(&(e.reason_index() as u32).to_be_bytes());
         p[4..].copy_from_slice(&i.header.seq.to_be_bytes());
         let key = match self.session.as_ref() {
-            Some(s) if i.kind != Kind::Open => s.keys.s2c,
+            Some(s) if i.kind != Kind::Proof => s.keys.s2c,
             _ => refuse_key(&self.psk, &i.nc),
         };
         Action::Reply(seal_raw(&key, FrameType::Error, &h, &p), Refusal::Malformed)
     }
 
-    /// The reply refusing an authenticated `open_session` (another client
-    /// holds the session): `error` `ERROR_REFUSED`, sealed with the key bound
-    /// to its nonce. `seq`/`timestamp_us` are the bridge's.
-    pub fn refusal(&self, i: &Inspected, seq: u32, timestamp_us: u32) -> Option<Wire> {
-        if i.kind != Kind::Open {
-            return None;
-        }
-        let h = FrameHeader {
-            control: 0,
-            session: 0,
-            seq,
-            timestamp_us,
-        };
-        Some(seal_refusal(&self.psk, &i.nc, &h, i.header.seq))
+    /// Has a direction of the live session reached the frame limit? The
+    /// bridge then ends it ([`EndReason::SeqExhausted`]).
+    pub fn exhausted(&self) -> bool {
+        self.live()
+            .is_some_and(|s| s.c2s_frames >= self.frame_limit || s.s2c_frames >= self.frame_limit)
     }
 
     /// Seal a v1 frame the kernel wrote on its output device for the client.
-    /// The kernel's `session_ack` for the pending handshake becomes the v2
-    /// `session_ack` (and fixes the session id); answers, acks and errors are
-    /// sealed under the session's s2c key. `None`: nothing to send.
+    /// The kernel's `session_ack` of the pending handshake becomes the v2
+    /// `session_ack` (and fixes the session id). Answers, acks and errors
+    /// are sealed under the session's s2c key only if they carry its id
+    /// (or, for the kernel's `error` 0x100, id 0: the kernel closed the
+    /// session); after the client's `close_session`, only the kernel's ack
+    /// of it (which carries id 0). `None`: nothing to send.
     pub fn seal_from_kernel(&mut self, v1: &[u8]) -> Option<Wire> {
-        let Ok((h, f)) = decode(v1) else {
+        let limit = self.frame_limit;
+        let sealed = self.seal_kernel_frame(v1, limit);
+        if sealed.is_none() {
             self.counters.replies_unsealed = self.counters.replies_unsealed.saturating_add(1);
-            return None;
-        };
-        let Some(s) = self.session.as_mut() else {
-            self.counters.replies_unsealed = self.counters.replies_unsealed.saturating_add(1);
-            return None;
-        };
+        }
+        sealed
+    }
+
+    fn seal_kernel_frame(&mut self, v1: &[u8], limit: u64) -> Option<Wire> {
+        let (h, f) = decode(v1).ok()?;
+        let s = self.session.as_mut()?;
         if let Frame::SessionAck {
             client_nonce,
             period_us,
         } = f
         {
-            if client_nonce != s.kernel_nonce {
+            if client_nonce != s.kernel_nonce || s.state != SessionState::Granting {
                 return None; // the ack of an earlier handshake
             }
             s.id = h.session;
+            s.state = SessionState::Open;
+            s.s2c_frames += 1;
             return Some(seal_session_ack(&s.keys, &h, &s.nc, &s.ns, period_us));
         }
-        let w = seal_reply_with(&s.keys.s2c_mac, v1)?;
-        if let Frame::Ack {
-            acked_type,
-            acked_seq,
-        } = f
-        {
-            if let Some(slot) = s.acks.get_mut(s.acks_next) {
-                *slot = Some((acked_seq, acked_type, w));
+        let ok = match (s.state, f) {
+            (SessionState::Open, Frame::Error { reason, .. })
+                if reason == ERROR_NO_SESSION && h.session == 0 =>
+            {
+                true
             }
-            s.acks_next = (s.acks_next + 1) % ACK_MEMORY;
+            (SessionState::Open, _) => h.session == s.id && s.id != 0,
+            (
+                SessionState::Closing(seq),
+                Frame::Ack {
+                    acked_type: FrameType::CloseSession,
+                    acked_seq,
+                },
+            ) => acked_seq == seq,
+            _ => false,
+        };
+        if !ok || s.s2c_frames >= limit {
+            return None;
+        }
+        let w = seal_reply_with(&s.keys.s2c_mac, v1)?;
+        s.s2c_frames += 1;
+        match f {
+            Frame::Ack {
+                acked_type: FrameType::CloseSession,
+                ..
+            } if matches!(s.state, SessionState::Closing(_)) => {
+                s.state = SessionState::Ended;
+            }
+            Frame::Ack {
+                acked_type,
+                acked_seq,
+            } => {
+                if let Some(slot) = s.acks.get_mut(s.acks_next) {
+                    *slot = Some((acked_seq, acked_type, w));
+                }
+                s.acks_next = (s.acks_next + 1) % ACK_MEMORY;
+            }
+            _ => {}
         }
         Some(w)
     }
@@ -881,6 +1454,8 @@ impl Gate {
 /// A reply the client verified.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Reply {
+    /// The bridge's cookie: send [`ClientAuth::prove`] next.
+    Cookie,
     /// The handshake completed: the session id is in the header.
     SessionAck { period_us: u32 },
     /// Any other controller frame, as hap-core decodes its v1 form
@@ -890,66 +1465,148 @@ pub enum Reply {
     HandshakeRefused { reason: u32 },
 }
 
+/// Where the client's handshake is.
+#[derive(Clone, Debug)]
+enum ClientState {
+    Idle,
+    /// `open_session` sent with this nonce.
+    Hello([u8; NONCE_LEN]),
+    /// `cookie` received; `open_proof` to send or sent.
+    Proving {
+        nc: [u8; NONCE_LEN],
+        ns: [u8; NONCE_LEN],
+        epoch: u32,
+    },
+}
+
 /// The client's side: the PSK, the pending handshake and the session keys.
 #[derive(Clone, Debug)]
 pub struct ClientAuth {
     psk: Psk,
-    pending: Option<[u8; NONCE_LEN]>,
+    pending: ClientState,
     keys: Option<SessionKeys>,
+    /// Frames sealed in this session (at most [`SESSION_FRAME_LIMIT`]).
+    sealed: u64,
+    frame_limit: u64,
 }
 
 impl ClientAuth {
     pub fn new(psk: Psk) -> ClientAuth {
         ClientAuth {
             psk,
-            pending: None,
+            pending: ClientState::Idle,
             keys: None,
+            sealed: 0,
+            frame_limit: SESSION_FRAME_LIMIT,
         }
     }
 
-    /// Start a handshake with the nonce `nc` (fresh for every attempt: the
-    /// bridge refuses a nonce it has seen). Returns the `open_session`.
+    /// Lower the frames a session may carry (tests).
+    pub fn set_frame_limit(&mut self, frames: u64) {
+        self.frame_limit = frames.clamp(1, SESSION_FRAME_LIMIT);
+    }
+
+    /// Start a handshake with the nonce `nc` (fresh for every attempt).
+    /// Returns the `open_session`.
     pub fn hello(&mut self, h: &FrameHeader, nc: [u8; NONCE_LEN]) -> Wire {
-        self.pending = Some(nc);
+        self.pending = ClientState::Hello(nc);
         let h = FrameHeader { session: 0, ..*h };
         seal_open(&self.psk, &h, &nc)
+    }
+
+    /// The `open_proof` answering the cookie received (`None` before one).
+    /// Its header's sequence number starts the session's numbering.
+    pub fn prove(&self, h: &FrameHeader) -> Option<Wire> {
+        let ClientState::Proving { nc, ns, epoch } = &self.pending else {
+            return None;
+        };
+        let h = FrameHeader { session: 0, ..*h };
+        Some(seal_open_proof(&self.psk, &h, nc, ns, *epoch))
     }
 
     pub fn established(&self) -> bool {
         self.keys.is_some()
     }
 
-    /// Seal a request (not `open_session`) under the session key.
-    pub fn seal(&self, h: &FrameHeader, f: &Frame) -> Option<Wire> {
-        seal_request(self.keys.as_ref()?, h, f)
+    /// The session's keys, once established.
+    pub fn keys(&self) -> Option<&SessionKeys> {
+        self.keys.as_ref()
+    }
+
+    /// True once the session sealed [`SESSION_FRAME_LIMIT`] frames: open a
+    /// new session.
+    pub fn exhausted(&self) -> bool {
+        self.keys.is_some() && self.sealed >= self.frame_limit
+    }
+
+    /// Forget the session (the controller ended it, or the client closed it).
+    pub fn end(&mut self) {
+        self.keys = None;
+        self.pending = ClientState::Idle;
+    }
+
+    /// Seal a request (not `open_session`) under the session key; `None`
+    /// without a session, or once it is [`ClientAuth::exhausted`].
+    pub fn seal(&mut self, h: &FrameHeader, f: &Frame) -> Option<Wire> {
+        if self.exhausted() {
+            return None;
+        }
+        let w = seal_request(self.keys.as_ref()?, h, f)?;
+        self.sealed += 1;
+        Some(w)
     }
 
     /// Verify and decode a datagram from the controller.
     pub fn open(&mut self, b: &[u8]) -> Result<(FrameHeader, Reply), Refusal> {
-        let ty = precheck(b, false)?;
+        let wt = precheck(b)?;
+        let h = read_header(b).ok_or(Refusal::Undersize)?;
+        let ty = match wt {
+            WireType::OpenProof => return Err(Refusal::NotARequest),
+            WireType::Cookie => {
+                let ClientState::Hello(nc) = self.pending else {
+                    return Err(Refusal::NoSession);
+                };
+                if nonce_at(b, HEADER_LEN) != nc
+                    || !verify(&keyed(&cookie_key(&self.psk, &nc)), b, TAG_LEN)
+                {
+                    return Err(Refusal::BadTag);
+                }
+                self.pending = ClientState::Proving {
+                    nc,
+                    ns: nonce_at(b, HEADER_LEN + NONCE_LEN),
+                    epoch: be32(b, HEADER_LEN + 2 * NONCE_LEN),
+                };
+                return Ok((h, Reply::Cookie));
+            }
+            WireType::Frame(ty) => ty,
+        };
         if ty.is_request() {
             return Err(Refusal::NotARequest);
         }
-        let h = read_header(b).ok_or(Refusal::Undersize)?;
         let tl = tag_len(ty);
         if ty == FrameType::SessionAck {
-            let nc = self.pending.ok_or(Refusal::NoSession)?;
-            if b[HEADER_LEN..HEADER_LEN + NONCE_LEN] != nc {
+            let ClientState::Proving { nc, ns, .. } = self.pending else {
+                return Err(Refusal::NoSession);
+            };
+            if nonce_at(b, HEADER_LEN) != nc || nonce_at(b, HEADER_LEN + NONCE_LEN) != ns {
                 return Err(Refusal::BadTag);
             }
-            let mut ns = [0u8; NONCE_LEN];
-            ns.copy_from_slice(&b[HEADER_LEN + NONCE_LEN..HEADER_LEN + 2 * NONCE_LEN]);
             let keys = SessionKeys::derive(&self.psk, &nc, &ns);
             if !verify(&keys.s2c_mac, b, tl) {
                 return Err(Refusal::BadTag);
             }
             let period_us = be32(b, HEADER_LEN + 2 * NONCE_LEN);
             self.keys = Some(keys);
-            self.pending = None;
+            self.sealed = 0;
+            self.pending = ClientState::Idle;
             return Ok((h, Reply::SessionAck { period_us }));
         }
         if ty == FrameType::Error && h.session == 0 {
-            if let Some(nc) = self.pending {
+            let nc = match &self.pending {
+                ClientState::Hello(nc) | ClientState::Proving { nc, .. } => Some(*nc),
+                ClientState::Idle => None,
+            };
+            if let Some(nc) = nc {
                 if verify(&keyed(&refuse_key(&self.psk, &nc)), b, tl) {
                     return Ok((
                         h,
@@ -995,6 +1652,16 @@ impl ClientAuth {
             }
         }
         let (_, f) = decode(&v1[..n]).map_err(|_| Refusal::Malformed)?;
+        if let Frame::Error { reason, .. } = f {
+            if matches!(
+                reason,
+                ERROR_NO_SESSION | ERROR_REPLACED | ERROR_EXPIRED | ERROR_SEQ_EXHAUSTED
+            ) {
+                // The bridge or the kernel ended the session: no further
+                // frame of it.
+                self.keys = None;
+            }
+        }
         Ok((h, Reply::Frame(f)))
     }
 }
@@ -1023,12 +1690,82 @@ mod tests {
     }
 
     #[test]
-    fn hex_round_trip_and_bad_keys() {
-        let k = Psk::test_key();
-        assert_eq!(Psk::parse_hex(&k.to_hex()).unwrap(), k);
-        assert!(Psk::parse_hex("00").is_err());
-        assert!(Psk::parse_hex(&"zz".repeat(32)).is_err());
-        assert_eq!(format!("{k:?}"), "Psk(..)");
+    fn every_handshake_frame_fits_and_the_cookie_is_under_three_times_the_hello() {
+        assert_eq!(frame_len(FrameType::OpenSession), 48);
+        assert_eq!(PROOF_FRAME_LEN, 68);
+        const {
+            assert!(PROOF_FRAME_LEN <= AMPLIFICATION_FACTOR * frame_len(FrameType::OpenSession));
+            assert!(PROOF_FRAME_LEN <= MAX_FRAME_LEN);
+        }
+    }
+
+    /// A key that passes: 32 bytes of a fixed pseudo-random sequence.
+    fn good_key() -> Psk {
+        let mut k = [0u8; PSK_LEN];
+        let mut x: u32 = 0x9e37_79b9;
+        for b in k.iter_mut() {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            *b = (x >> 11) as u8;
+        }
+        Psk::from_bytes(k)
+    }
+
+    #[test]
+    fn a_key_file_is_exactly_one_line_of_64_lowercase_hex_digits() {
+        let k = good_key();
+        let line = format!("{}\n", k.to_hex());
+        assert_eq!(Psk::parse_file(line.as_bytes()).unwrap(), k);
+        assert_eq!(Psk::parse_file(&line.as_bytes()[..64]).unwrap(), k);
+        let bad: Vec<String> = vec![
+            format!(" {}", &line[..64]),
+            format!("{}\n\n", &line[..64]),
+            format!("{}\r\n", &line[..64]),
+            format!("{} \n", &line[..64]),
+            line[..64].to_uppercase(),
+            format!("+{}", &line[1..64]),
+            format!("0x{}", &line[2..64]),
+            line[..62].to_string(),
+            String::new(),
+            format!("{}\n{}", &line[..32], &line[32..64]),
+        ];
+        for b in &bad {
+            assert!(
+                matches!(Psk::parse_file(b.as_bytes()), Err(KeyError::Format(_))),
+                "{b:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn weak_keys_are_refused() {
+        assert!(good_key().check_strength().is_ok());
+        let weak = [
+            Psk::from_bytes([0; PSK_LEN]),
+            Psk::test_key(),
+            Psk::from_bytes([0x5a; PSK_LEN]),
+            Psk::from_bytes(*b"passwordpasswordpasswordpassword"),
+            Psk::from_bytes(core::array::from_fn(|i| (7 * i + 3) as u8)),
+            Psk::from_bytes(core::array::from_fn(
+                |i| if i % 2 == 0 { 0xde } else { 0xad },
+            )),
+        ];
+        for k in &weak {
+            assert!(
+                matches!(k.check_strength(), Err(KeyError::Weak(_))),
+                "{:?}",
+                k.as_bytes()
+            );
+            let line = format!("{}\n", k.to_hex());
+            let e = Psk::parse_file(line.as_bytes()).unwrap_err();
+            assert!(e.to_string().starts_with("weak key refused"), "{e}");
+        }
+        // Generated keys always pass.
+        for _ in 0..64 {
+            assert!(Psk::generate().unwrap().check_strength().is_ok());
+        }
+        assert_eq!(format!("{:?}", good_key()), "Psk(..)");
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! Protocol v2 test vectors in Documentation/protocol.md §7.6: generated
+//! Protocol v2 test vectors in Documentation/protocol.md §7.11: generated
 //! here under the published test key, and the test fails if the document
 //! differs by one byte. Regenerate with:
 //!
@@ -6,8 +6,8 @@
 //!
 //! A second test reads the vectors back from the document and checks every
 //! tag with an HMAC-SHA-256 written here from RFC 2104 on top of the plain
-//! SHA-256 (not the `hmac` crate the library uses), the keys derived as §7.2
-//! says: what an independent implementation would do.
+//! SHA-256 (not the `hmac` crate the library uses), the keys and the
+//! cookie derived as §7.2 says: what an independent implementation would do.
 
 use std::fmt::Write;
 
@@ -23,9 +23,6 @@ const END: &str = "<!-- END V2 TEST VECTORS -->";
 
 const NC: [u8; NONCE_LEN] = [
     0xa0, 0xa1, 0xa2, 0xa3, 0xa4, 0xa5, 0xa6, 0xa7, 0xa8, 0xa9, 0xaa, 0xab, 0xac, 0xad, 0xae, 0xaf,
-];
-const NS: [u8; NONCE_LEN] = [
-    0xb0, 0xb1, 0xb2, 0xb3, 0xb4, 0xb5, 0xb6, 0xb7, 0xb8, 0xb9, 0xba, 0xbb, 0xbc, 0xbd, 0xbe, 0xbf,
 ];
 
 fn fx(v: f64) -> Fx {
@@ -49,10 +46,37 @@ fn h(seq: u32, session: u16, control: u16) -> FrameHeader {
     }
 }
 
-/// (name of the key, frame) for every type, as protocol.md §5's samples.
-fn vectors() -> Vec<(&'static str, Wire)> {
+/// The bridge's cookie secret of the vectors (a real bridge draws one at
+/// start): bytes 0xc0 … 0xdf.
+fn secret() -> [u8; 32] {
+    core::array::from_fn(|i| 0xc0 + i as u8)
+}
+
+/// The client's address of the vectors, and the bridge's clock (100 s
+/// after its start: epoch 20).
+fn client_addr() -> std::net::SocketAddr {
+    std::net::SocketAddr::from(([192, 0, 2, 1], 40000))
+}
+
+const NOW: std::time::Duration = std::time::Duration::from_secs(100);
+
+/// A bridge-made header: seq 0, timestamp 0.
+fn bridge_h(session: u16) -> FrameHeader {
+    FrameHeader {
+        control: 0,
+        session,
+        seq: 0,
+        timestamp_us: 0,
+    }
+}
+
+/// (title, name of the key, frame) for every frame of a session, in the
+/// order they are exchanged, as protocol.md §5's samples.
+fn vectors() -> Vec<(String, &'static str, Wire)> {
     let psk = Psk::test_key();
-    let keys = SessionKeys::derive(&psk, &NC, &NS);
+    let epoch = epoch_of(NOW);
+    let ns = cookie_nonce(&secret(), epoch, &client_addr(), &NC);
+    let keys = SessionKeys::derive(&psk, &NC, &ns);
     let pose = Pose {
         position: v3(0.1, -0.05, 0.3),
         orientation: Quat {
@@ -70,45 +94,73 @@ fn vectors() -> Vec<(&'static str, Wire)> {
         force: v3(1.5, -2.0, 0.25),
         torque: v3(0.0, 0.125, 0.0),
     };
-    let req = |seq: u32, control: u16, f: Frame| {
+    let title = |ty: FrameType| format!("`{}` (0x{:02X})", ty.name(), ty as u8);
+    let mut v = vec![
         (
-            "K_c2s",
-            seal_request(&keys, &h(seq, 7, control), &f).unwrap(),
-        )
+            "`open_session` (0x01), client, handshake round 1".to_string(),
+            "K_open",
+            seal_open(&psk, &h(1, 0, 0), &NC),
+        ),
+        (
+            "`cookie` (0x90), bridge, answers round 1".to_string(),
+            "K_cookie",
+            seal_cookie(&psk, &bridge_h(0), &NC, &ns, epoch),
+        ),
+        (
+            "`open_proof` (0x10), client, handshake round 2".to_string(),
+            "K_proof",
+            seal_open_proof(&psk, &h(2, 0, 0), &NC, &ns, epoch),
+        ),
+    ];
+    let sa = seal_session_ack(&keys, &h(502, 7, 0), &NC, &ns, 1000);
+    v.push((
+        "`session_ack` (0x83), kernel via the bridge, ends the handshake".to_string(),
+        "K_s2c",
+        sa,
+    ));
+    let mut req = |seq: u32, control: u16, f: Frame| {
+        let ty = f.frame_type();
+        let w = seal_request(&keys, &h(seq, 7, control), &f).unwrap();
+        v.push((format!("{}, client", title(ty)), "K_c2s", w));
     };
-    let mut v = vec![("K_open", seal_open(&psk, &h(1, 0, CTRL_ACK_REQUEST), &NC))];
-    v.push(req(2, 0, Frame::CloseSession));
-    v.push(req(3, CTRL_ACK_REQUEST, Frame::SetBaseFrame(pose)));
-    v.push(req(4, 0, Frame::SetObservationFrame(Pose::default())));
-    v.push(req(
+    req(3, CTRL_ACK_REQUEST, Frame::SetBaseFrame(pose));
+    req(4, 0, Frame::SetObservationFrame(Pose::default()));
+    req(
         5,
         0,
         Frame::SetFactors {
             force: fx(1.0),
             speed: fx(0.5),
         },
-    ));
-    v.push(req(6, 0, Frame::SetTimeStep(fx(1.0 / 1024.0))));
-    v.push(req(7, 0, Frame::SetCommandType(CommandType::Impedance)));
-    v.push(req(8, 0, Frame::SetIndexingMode(IndexingMode::Trans)));
-    v.push(req(
+    );
+    req(6, 0, Frame::SetTimeStep(fx(1.0 / 1024.0)));
+    req(7, 0, Frame::SetCommandType(CommandType::Impedance));
+    req(8, 0, Frame::SetIndexingMode(IndexingMode::Trans));
+    req(
         9,
         0,
         Frame::AttachVirtualObject(VirtualObjectParams {
             mass: fx(0.5),
             inertia: v3(1.0 / 1024.0, 1.0 / 1024.0, 1.0 / 512.0),
         }),
-    ));
-    v.push(req(10, 0, Frame::DetachVirtualObject));
-    v.push(req(11, 0, Frame::PowerRequest(true)));
-    v.push(req(12, 0, Frame::VprStream { pose, twist }));
-    let reply = |seq: u32, f: Frame| {
+    );
+    req(10, 0, Frame::DetachVirtualObject);
+    req(11, 0, Frame::PowerRequest(true));
+    req(12, 0, Frame::VprStream { pose, twist });
+    req(13, CTRL_ACK_REQUEST, Frame::CloseSession);
+    let reply = |seq: u32, session: u16, f: Frame, who: &str| {
+        let ty = f.frame_type();
         let mut b = [0u8; MAX_FRAME_LEN];
-        let n = encode(&h(seq, 7, 0), &f, &mut b);
-        ("K_s2c", seal_reply_from_v1(&keys.s2c, &b[..n]).unwrap())
+        let n = encode(&h(seq, session, 0), &f, &mut b);
+        (
+            format!("{}, {who}", title(ty)),
+            "K_s2c",
+            seal_reply_from_v1(&keys.s2c, &b[..n]).unwrap(),
+        )
     };
     v.push(reply(
         500,
+        7,
         Frame::Answer(Answer {
             handle_pose: pose,
             coupling_wrench: wrench,
@@ -117,9 +169,11 @@ fn vectors() -> Vec<(&'static str, Wire)> {
             cycle: 123_456,
             vpr_seq: 12,
         }),
+        "kernel via the bridge",
     ));
     v.push(reply(
         501,
+        7,
         Frame::AnswerTwist(AnswerTwist {
             handle_twist: twist,
             status: status::POWER_ON,
@@ -127,26 +181,73 @@ fn vectors() -> Vec<(&'static str, Wire)> {
             cycle: 123_456,
             vpr_seq: 12,
         }),
-    ));
-    v.push((
-        "K_s2c",
-        seal_session_ack(&keys, &h(502, 7, 0), &NC, &NS, 1000),
+        "kernel via the bridge",
     ));
     v.push(reply(
         503,
+        7,
         Frame::Ack {
             acked_type: FrameType::SetBaseFrame,
             acked_seq: 3,
         },
+        "kernel via the bridge (the bridge re-sends these bytes for a retransmitted request)",
     ));
     v.push(reply(
         504,
-        Frame::Error {
-            reason: DecodeError::NotFinite.reason_index() as u32,
-            rejected_seq: 13,
+        0,
+        Frame::Ack {
+            acked_type: FrameType::CloseSession,
+            acked_seq: 13,
         },
+        "kernel via the bridge, acknowledging `close_session`: session 0",
     ));
-    v.push(("K_refuse", seal_refusal(&psk, &NC, &h(505, 0, 0), 1)));
+    v.push(reply(
+        505,
+        0,
+        Frame::Error {
+            reason: ERROR_NO_SESSION,
+            rejected_seq: 14,
+        },
+        "kernel via the bridge, reason 0x100 `no session`: session 0",
+    ));
+    let mut p = [0u8; 8];
+    p[..4].copy_from_slice(&(DecodeError::NotFinite.reason_index() as u32).to_be_bytes());
+    p[4..].copy_from_slice(&14u32.to_be_bytes());
+    v.push((
+        "`error` (0x85), bridge, reason 8 `not_finite` (a verified request that does not decode)"
+            .to_string(),
+        "K_s2c",
+        seal_raw(&keys.s2c, FrameType::Error, &bridge_h(7), &p),
+    ));
+    // The session-end notice as the gate makes it: after the handshake
+    // (newest accepted seq 2, the open_proof's), the session expires.
+    let mut gate = Gate::new(psk.clone(), secret());
+    let hello = gate.inspect(v[0].2.bytes(), client_addr(), NOW).unwrap();
+    assert_eq!(gate.commit(&hello, NOW), Action::Challenge(v[1].2));
+    let proof = gate.inspect(v[2].2.bytes(), client_addr(), NOW).unwrap();
+    assert!(matches!(gate.commit(&proof, NOW), Action::Forward(_)));
+    let mut b = [0u8; MAX_FRAME_LEN];
+    let n = encode(
+        &h(502, 7, 0),
+        &Frame::SessionAck {
+            client_nonce: 1,
+            period_us: 1000,
+        },
+        &mut b,
+    );
+    assert_eq!(gate.seal_from_kernel(&b[..n]), Some(sa));
+    let ended = gate.end_session(EndReason::Expired).unwrap();
+    v.push((
+        "`error` (0x85), bridge, reason 0x103 `expired`".to_string(),
+        "K_s2c",
+        ended.notice,
+    ));
+    v.push((
+        "`error` (0x85), bridge, reason 0x101 `refused` (a proven handshake the bridge cannot take)"
+            .to_string(),
+        "K_refuse",
+        seal_refusal(&psk, &NC, &bridge_h(0), 2),
+    ));
     v
 }
 
@@ -163,14 +264,24 @@ fn dump(s: &mut String, b: &[u8]) {
 
 fn generated() -> String {
     let psk = Psk::test_key();
-    let keys = SessionKeys::derive(&psk, &NC, &NS);
+    let epoch = epoch_of(NOW);
+    let ns = cookie_nonce(&secret(), epoch, &client_addr(), &NC);
+    let keys = SessionKeys::derive(&psk, &NC, &ns);
     let mut s = String::new();
     writeln!(s, "| name | value (hex) |\n|---|---|").unwrap();
     for (n, v) in [
         ("PSK (test key)", hex(psk.as_bytes())),
+        ("S (bridge secret)", hex(&secret())),
+        (
+            "address (192.0.2.1:40000)",
+            hex(&address_bytes(&client_addr())),
+        ),
+        ("epoch (100 s / 5 s)", hex(&epoch.to_be_bytes())),
         ("Nc", hex(&NC)),
-        ("Ns", hex(&NS)),
+        ("Ns", hex(&ns)),
         ("K_open", hex(&open_key(&psk))),
+        ("K_cookie", hex(&cookie_key(&psk, &NC))),
+        ("K_proof", hex(&proof_key(&psk))),
         ("K_c2s", hex(&keys.c2s)),
         ("K_s2c", hex(&keys.s2c)),
         ("K_refuse", hex(&refuse_key(&psk, &NC))),
@@ -178,18 +289,15 @@ fn generated() -> String {
         writeln!(s, "| {n} | `{v}` |").unwrap();
     }
     writeln!(s).unwrap();
-    for (i, (key, w)) in vectors().iter().enumerate() {
-        let ty = FrameType::from_u8(w.buf[3]).unwrap();
-        let what = if i + 1 == vectors().len() {
-            "`error` 0x101 refusing the handshake".to_string()
-        } else {
-            format!("`{}` (0x{:02X})", ty.name(), ty as u8)
+    for (title, key, w) in vectors() {
+        let tl = match FrameType::from_u8(w.buf[3]) {
+            Some(ty) => tag_len(ty),
+            None => TAG_LEN,
         };
         writeln!(
             s,
-            "#### {what}, {} bytes, tag {} bytes under {key}\n",
-            w.len,
-            tag_len(ty)
+            "#### {title}; {} bytes, tag {tl} bytes under {key}\n",
+            w.len
         )
         .unwrap();
         dump(&mut s, w.bytes());
@@ -219,14 +327,34 @@ fn documentation_vectors_are_current() {
     assert_eq!(&doc[start..end], g, "regenerate with HAP_WRITE_DOC=1");
 }
 
-/// The vectors are accepted by the library's own two sides.
+/// The vectors are what the library's two sides make and accept, in the
+/// order of a session.
 #[test]
 fn vectors_verify_on_both_sides() {
     let v = vectors();
-    let mut gate = Gate::new(Psk::test_key());
-    let open = gate.inspect(v[0].1.bytes()).unwrap();
-    assert!(matches!(gate.commit(&open, NS), Action::Forward(_)));
-    // The kernel's session_ack (kernel nonce 1) makes the gate's session 7.
+    let w = |i: usize| v[i].2;
+    let mut c = ClientAuth::new(Psk::test_key());
+    assert_eq!(c.hello(&h(1, 0, 0), NC), w(0));
+    assert_eq!(c.open(w(1).bytes()).unwrap().1, Reply::Cookie);
+    assert_eq!(c.prove(&h(2, 0, 0)), Some(w(2)));
+    // The refusal is bound to this handshake's nonce.
+    assert_eq!(
+        c.open(w(v.len() - 1).bytes()).unwrap().1,
+        Reply::HandshakeRefused {
+            reason: ERROR_REFUSED
+        }
+    );
+    assert_eq!(
+        c.open(w(3).bytes()).unwrap().1,
+        Reply::SessionAck { period_us: 1000 }
+    );
+    // The client's requests are the vectors, byte for byte, and the bridge
+    // accepts them (a gate at the vectors' secret, address and time).
+    let mut gate = Gate::new(Psk::test_key(), secret());
+    let hello = gate.inspect(w(0).bytes(), client_addr(), NOW).unwrap();
+    gate.commit(&hello, NOW);
+    let proof = gate.inspect(w(2).bytes(), client_addr(), NOW).unwrap();
+    gate.commit(&proof, NOW);
     let mut b = [0u8; MAX_FRAME_LEN];
     let n = encode(
         &h(502, 7, 0),
@@ -236,21 +364,26 @@ fn vectors_verify_on_both_sides() {
         },
         &mut b,
     );
-    assert_eq!(gate.seal_from_kernel(&b[..n]).unwrap(), v[14].1);
-    for (_, w) in &v[1..12] {
-        assert!(gate.inspect(w.bytes()).is_ok(), "{w:?}");
+    assert_eq!(gate.seal_from_kernel(&b[..n]), Some(w(3)));
+    for (title, _, req) in &v[4..15] {
+        let f = hap_core::protocol::decode(&{
+            // The v1 form of the request, to seal it again on the client.
+            let i2 = gate.inspect(req.bytes(), client_addr(), NOW).unwrap();
+            match gate.commit(&i2, NOW) {
+                Action::Forward(v1) => v1.bytes().to_vec(),
+                a => panic!("{a:?}"),
+            }
+        })
+        .unwrap();
+        assert_eq!(c.seal(&f.0, &f.1).as_ref(), Some(req), "{title}");
     }
-    let mut c = ClientAuth::new(Psk::test_key());
-    c.hello(&h(1, 0, 0), NC);
-    let refusal = &v[17].1;
-    assert!(matches!(
-        c.open(refusal.bytes()),
-        Ok((_, Reply::HandshakeRefused { reason: 0x101 }))
-    ));
-    assert!(c.open(v[14].1.bytes()).is_ok());
-    for i in [12, 13, 15, 16] {
-        let w = &v[i].1;
-        assert!(c.open(w.bytes()).is_ok(), "{w:?}");
+    // The controller's frames verify on the client (each on a copy of it:
+    // the kernel's 0x100 and the bridge's notice end the session there).
+    for (title, _, reply) in &v[15..v.len() - 1] {
+        let mut copy = c.clone();
+        assert!(copy.open(reply.bytes()).is_ok(), "{title}");
+        let ends = title.contains("0x100") || title.contains("0x103");
+        assert_eq!(copy.established(), !ends, "{title}");
     }
 }
 
@@ -293,12 +426,33 @@ fn an_independent_hmac_reproduces_the_document() {
         unhex(l.split('`').nth(1).unwrap())
     };
     let (psk, nc, ns) = (val("PSK (test key)"), val("Nc"), val("Ns"));
+    let (secret, addr, epoch) = (
+        val("S (bridge secret)"),
+        val("address (192.0.2.1:40000)"),
+        val("epoch (100 s / 5 s)"),
+    );
+    assert_eq!(
+        addr,
+        [
+            &[0u8; 10][..],
+            &[0xff, 0xff, 192, 0, 2, 1],
+            &40000u16.to_be_bytes()
+        ]
+        .concat()
+    );
+    assert_eq!(epoch, 20u32.to_be_bytes());
     let cat = |parts: &[&[u8]]| parts.concat();
+    let ns_full = rfc2104(&secret, &cat(&[b"hapticctrl v2 ns", &epoch, &addr, &nc]));
+    assert_eq!(ns, ns_full[..16]);
     let k_open = rfc2104(&psk, b"hapticctrl v2 open");
+    let k_cookie = rfc2104(&psk, &cat(&[b"hapticctrl v2 cookie", &nc]));
+    let k_proof = rfc2104(&psk, b"hapticctrl v2 proof");
     let k_c2s = rfc2104(&psk, &cat(&[b"hapticctrl v2 c2s", &nc, &ns]));
     let k_s2c = rfc2104(&psk, &cat(&[b"hapticctrl v2 s2c", &nc, &ns]));
     let k_refuse = rfc2104(&psk, &cat(&[b"hapticctrl v2 refuse", &nc]));
     assert_eq!(val("K_open"), k_open);
+    assert_eq!(val("K_cookie"), k_cookie);
+    assert_eq!(val("K_proof"), k_proof);
     assert_eq!(val("K_c2s"), k_c2s);
     assert_eq!(val("K_s2c"), k_s2c);
     assert_eq!(val("K_refuse"), k_refuse);
@@ -310,6 +464,8 @@ fn an_independent_hmac_reproduces_the_document() {
         };
         let key = match rest.rsplit("under ").next().unwrap() {
             "K_open" => k_open,
+            "K_cookie" => k_cookie,
+            "K_proof" => k_proof,
             "K_c2s" => k_c2s,
             "K_s2c" => k_s2c,
             "K_refuse" => k_refuse,
@@ -342,5 +498,5 @@ fn an_independent_hmac_reproduces_the_document() {
         assert_eq!(tag, &rfc2104(&key, body)[..tlen], "{rest}");
         frames += 1;
     }
-    assert_eq!(frames, 18);
+    assert_eq!(frames, 23);
 }

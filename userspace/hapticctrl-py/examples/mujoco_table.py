@@ -153,6 +153,7 @@ def run(
     fade: float = 0.1,
     clock: str = "host",
     power_off: bool = True,
+    time_step: float | None = None,
 ) -> tuple[Trace, hc.LoopStats]:
     """Couple the handle to the tool for `duration` s. `origin`: the
     controller's coordinates of MuJoCo's origin (None: the handle's position
@@ -162,11 +163,16 @@ def run(
     show (none without a new answer, and then nothing is streamed: the
     set-points follow the controller's rate), for a controller slower than
     the host.
-    `power_off`: request the arm's power off at the end."""
+    `power_off`: request the arm's power off at the end.
+    `time_step`: the integration step declared for the attached object
+    (default `period`). VirtMech caps the coupling's stiffness at
+    mass/time_step², so a client that holds one force over several MuJoCo
+    steps (clock "controller" against a slow emulated guest) declares the
+    longest such hold, and the coupling stays stable for it."""
     if clock not in ("host", "controller"):
         raise ValueError(f"clock {clock!r}: host or controller")
     scene = Scene(period)
-    session.set_time_step(period)
+    session.set_time_step(period if time_step is None else time_step)
     session.set_command_type("virtmech")
     mass = float(scene.model.body_subtreemass[scene.tool])
     inertia = scene.model.body_inertia[scene.tool]

@@ -89,8 +89,9 @@ fn run(n: usize, key: Option<Psk>) -> Vec<u32> {
         stats_file: None,
         session_timeout: Duration::from_secs(3),
         stats_interval: Duration::from_secs(1),
-        key,
+        key: key.clone(),
         refusal_budget: 1000,
+        handshake_budget: 500,
         rt_priority: None,
         rt_budget_percent: 25,
     };
@@ -100,7 +101,7 @@ fn run(n: usize, key: Option<Psk>) -> Vec<u32> {
     let mut vc = VirtContext::open_with(
         &addr,
         Options {
-            key,
+            key: key.clone(),
             ..Options::default()
         },
     )
@@ -137,7 +138,7 @@ fn main() {
     println!("{n} requests per protocol, host loopback, fake kernel answering at once");
     for (name, key) in [
         ("v1 (--insecure)", None),
-        ("v2 (key)       ", Some(Psk::test_key())),
+        ("v2 (key)       ", Some(Psk::generate().unwrap())),
     ] {
         let v = run(n, key);
         let mean = v.iter().map(|x| f64::from(*x)).sum::<f64>() / v.len().max(1) as f64;

@@ -41,6 +41,17 @@ pub struct Counters {
     pub sessions_opened: AtomicU64,
     pub sessions_closed: AtomicU64,
     pub sessions_expired: AtomicU64,
+    /// Sessions the bridge ended itself (expired, sequence numbers spent),
+    /// each closed in the module and its client told why.
+    pub sessions_ended_by_bridge: AtomicU64,
+    /// `close_session` frames the bridge wrote to the module itself.
+    pub kernel_closes: AtomicU64,
+    /// `cookie` answers sent, and their bytes (v2 handshakes, first round).
+    pub cookies_sent: AtomicU64,
+    pub cookie_bytes: AtomicU64,
+    /// Answers not sent because they exceeded 3x the datagram they answer
+    /// (the anti-amplification rule; 0 unless a frame size changes).
+    pub amplification_refused: AtomicU64,
     /// The SERVER thread left SCHED_FIFO for SCHED_OTHER: a budget window
     /// in which it used more than its share of the CPU (`rtbudget`).
     pub rt_demotions: AtomicU64,
@@ -101,6 +112,14 @@ impl Counters {
         row("sessions_opened", l(&self.sessions_opened));
         row("sessions_closed", l(&self.sessions_closed));
         row("sessions_expired", l(&self.sessions_expired));
+        row(
+            "sessions_ended_by_bridge",
+            l(&self.sessions_ended_by_bridge),
+        );
+        row("kernel_closes", l(&self.kernel_closes));
+        row("cookies_sent", l(&self.cookies_sent));
+        row("cookie_bytes", l(&self.cookie_bytes));
+        row("amplification_refused", l(&self.amplification_refused));
         row("rt_demotions", l(&self.rt_demotions));
         row("rt_restores", l(&self.rt_restores));
         row("rt_policy_errors", l(&self.rt_policy_errors));

@@ -26,8 +26,8 @@ pub mod ratelimit;
 pub mod rtbudget;
 pub mod session;
 
-use hap_auth::{Action, Gate, Kind, Psk, Refusal};
-use ratelimit::RateLimit;
+use hap_auth::{Action, EndReason, Ended, Gate, Kind, Psk, Refusal};
+use ratelimit::{RateLimit, TokenBucket};
 use rtbudget::RtBudget;
 
 use std::fs::{File, OpenOptions};
@@ -58,9 +58,12 @@ pub struct Config {
     /// The pre-shared key (protocol v2); `None`: unauthenticated v1
     /// (`--insecure`).
     pub key: Option<Psk>,
-    /// Refused datagrams per second and source address before that source is
+    /// Refused datagrams per second and source IP before that IP is
     /// dropped unexamined (0: no limit).
     pub refusal_budget: u32,
+    /// `open_session` datagrams per second the bridge examines, all sources
+    /// together (bursts of twice that; 0: no limit).
+    pub handshake_budget: u32,
     /// The SCHED_FIFO priority the process was given (`--rt-priority`), so
     /// that the SERVER thread can return to it; `None`: SCHED_OTHER.
     pub rt_priority: Option<i32>,
@@ -136,13 +139,29 @@ pub fn write_stats_file(path: &Path, text: &str) -> std::io::Result<()> {
     std::fs::rename(&tmp, path)
 }
 
-/// Bind the UDP socket (SO_REUSEADDR, a large receive buffer for bursts).
+/// Bind the UDP socket (a large receive buffer for bursts). The port is
+/// never shared: no `SO_REUSEADDR` or `SO_REUSEPORT`, so a port another
+/// process holds (or binds at the same time) is refused with `EADDRINUSE`
+/// and a process started later cannot bind it to read the bridge's
+/// datagrams.
 pub fn bind_socket(addr: SocketAddr) -> std::io::Result<UdpSocket> {
     use socket2::{Domain, Protocol, Socket, Type};
     let sock = Socket::new(Domain::for_address(addr), Type::DGRAM, Some(Protocol::UDP))?;
-    sock.set_reuse_address(true)?;
+    sock.set_reuse_address(false)?;
     let _ = sock.set_recv_buffer_size(1 << 20);
-    sock.bind(&addr.into())?;
+    sock.bind(&addr.into()).map_err(|e| {
+        if e.kind() == ErrorKind::AddrInUse {
+            std::io::Error::new(
+                ErrorKind::AddrInUse,
+                format!(
+                    "udp {addr} is already in use by another process (the bridge never \
+                     shares its port: stop the other process or choose another --port)"
+                ),
+            )
+        } else {
+            e
+        }
+    })?;
     let udp: UdpSocket = sock.into();
     udp.set_read_timeout(Some(Duration::from_millis(100)))?;
     Ok(udp)
@@ -199,7 +218,10 @@ impl Bridge {
             closed_by: Mutex::new(None),
             stop: AtomicBool::new(false),
             fatal: Mutex::new(None),
-            gate: cfg.key.map(|k| Mutex::new(Gate::new(k))),
+            gate: match cfg.key.clone() {
+                Some(k) => Some(Mutex::new(Gate::with_random_secret(k)?)),
+                None => None,
+            },
         });
         if shared.gate.is_none() {
             shared.counters.insecure.store(1, Ordering::Relaxed);
@@ -266,6 +288,9 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
     let mut dev: Option<File> = None;
     let mut stats_warned = false;
     let mut limit = RateLimit::new(cfg.refusal_budget);
+    let mut hello_budget = TokenBucket::new(cfg.handshake_budget, Instant::now());
+    // The gate's clock (cookie epochs): monotonic, from the bridge's start.
+    let clock = Instant::now();
     let mut refusal_log = [None; Refusal::COUNT];
     let mut insecure_log: Option<Instant> = None;
     let mut budget = cfg.rt_priority.map(|p| {
@@ -309,10 +334,26 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
                 }
             }
         }
-        if session.expire(now) {
-            if let Some(g) = &shared.gate {
-                lock(g).end_session();
+        let had = session.client();
+        let expired = session.expire(now);
+        if let Some(g) = &shared.gate {
+            let why = if expired {
+                Some(EndReason::Expired)
+            } else if lock(g).exhausted() {
+                session.end();
+                Some(EndReason::SeqExhausted)
+            } else {
+                None
+            };
+            if let Some(why) = why {
+                let ended = lock(g).end_session(why);
+                if let Some(e) = ended {
+                    end_in_module(&e, had, sock, dev.as_mut(), shared, cfg);
+                }
+                Counters::inc(&shared.counters.sessions_ended_by_bridge);
             }
+        }
+        if expired || had != session.client() {
             publish_session(shared, &session);
         }
         if shared.gate.is_none()
@@ -353,14 +394,27 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
             shared.counters.refuse(Refusal::RateLimited);
             continue;
         }
+        // An open_session (v2 type byte 1) costs two HMACs and a reply:
+        // the global budget is checked before any of it.
+        if shared.gate.is_some()
+            && data.get(2..4) == Some(&[hap_auth::VERSION, 1][..])
+            && !hello_budget.take(now)
+        {
+            shared.counters.refuse(Refusal::HandshakeBudget);
+            continue;
+        }
         let step = match &shared.gate {
-            Some(gate) => authenticated(gate, &mut session, src, data, sock, shared, now),
+            Some(gate) => {
+                let clock_now = now.saturating_duration_since(clock);
+                let mut ctx = Ctx { sock, shared, cfg };
+                authenticated(gate, &mut session, src, data, &mut ctx, now, clock_now)
+            }
             None => insecure(&mut session, src, data, shared, now),
         };
         let frame = match step {
             Step::Refused(r) => {
                 shared.counters.refuse(r);
-                limit.charge(src, session.client(), now);
+                limit.charge(src, now);
                 log_refusal(&mut refusal_log, r, src, now);
                 continue;
             }
@@ -456,75 +510,136 @@ fn lock(g: &Mutex<Gate>) -> std::sync::MutexGuard<'_, Gate> {
     }
 }
 
-/// Protocol v2: verify, apply the address policy, commit.
+/// What `authenticated` needs of the SERVER thread besides the gate.
+struct Ctx<'a> {
+    sock: &'a UdpSocket,
+    shared: &'a Shared,
+    cfg: &'a Config,
+}
+
+/// Send `w` to `to`, counting a failure.
+fn send(sock: &UdpSocket, shared: &Shared, w: &hap_auth::Wire, to: SocketAddr) -> bool {
+    let ok = sock.send_to(w.bytes(), to).is_ok();
+    if !ok {
+        Counters::inc(&shared.counters.send_errors);
+    }
+    ok
+}
+
+/// A session the bridge ended: tell its client why (it was proven, the
+/// notice goes to it only), and close the session in the module with the
+/// gate's v1 `close_session`, so that PROTO_IN resets the configuration and
+/// the VPr as for the client's own close.
+fn end_in_module(
+    e: &Ended,
+    client: Option<SocketAddr>,
+    sock: &UdpSocket,
+    dev: Option<&mut File>,
+    shared: &Shared,
+    cfg: &Config,
+) {
+    if let Some(to) = client {
+        if send(sock, shared, &e.notice, to) {
+            Counters::inc(&shared.counters.refusals_answered);
+        }
+    }
+    if let (Some(close), Some(f)) = (e.kernel_close, dev) {
+        match f.write(close.bytes()) {
+            Ok(w) if w == close.len => Counters::inc(&shared.counters.kernel_closes),
+            Ok(_) => Counters::inc(&shared.counters.write_errors),
+            Err(err) => {
+                Counters::inc(&shared.counters.write_errors);
+                if is_device_gone(&err) {
+                    shared.set_fatal(format!("{}: {err}", cfg.rtf_in.display()));
+                }
+            }
+        }
+    }
+}
+
+/// Protocol v2: verify, apply the address policy, commit. Until a source
+/// has proven the key (a committed `open_proof`), its only answer is the
+/// `cookie`, one per `open_session`, at most [`hap_auth::AMPLIFICATION_FACTOR`]
+/// times its size.
 fn authenticated(
     gate: &Mutex<Gate>,
     session: &mut Session,
     src: SocketAddr,
     data: &[u8],
-    sock: &UdpSocket,
-    shared: &Shared,
+    ctx: &mut Ctx<'_>,
     now: Instant,
+    clock_now: Duration,
 ) -> Step {
+    let shared = ctx.shared;
     let mut g = lock(gate);
-    let i = match g.inspect(data) {
+    let i = match g.inspect(data, src, clock_now) {
         Ok(i) => i,
         Err(r) => return Step::Refused(r),
     };
-    let kind = match i.kind {
-        Kind::Open => FrameKind::OpenSession,
-        Kind::Close => FrameKind::CloseSession,
-        Kind::Other => FrameKind::Other,
-    };
-    match session.admit(src, kind, now) {
-        Decision::Drop(r) => {
-            // A key holder asking for the arm while another client has it is
-            // told so (authenticated, bound to its nonce); nothing else is.
-            if i.kind == Kind::Open && r == Refusal::StraySource {
-                if let Some(w) = g.refusal(&i, 0, 0) {
-                    if sock.send_to(w.bytes(), src).is_ok() {
-                        Counters::inc(&shared.counters.refusals_answered);
-                    }
-                }
-            }
-            Step::Refused(r)
-        }
-        Decision::Forward => {
-            // The controller's nonce is used by an open_session only: drawing
-            // it for every frame cost an open/read/close of /dev/urandom per
-            // verified datagram.
-            let ns = if i.kind == Kind::Open {
-                match hap_auth::fresh_nonce() {
-                    Ok(n) => n,
-                    Err(e) => {
-                        shared.set_fatal(format!("/dev/urandom: {e}"));
-                        return Step::Done;
-                    }
-                }
-            } else {
-                [0u8; hap_auth::NONCE_LEN]
-            };
+    let decision = match i.kind {
+        Kind::Hello => Decision::Forward,
+        Kind::Proof => {
+            let before = session.client();
+            session.admit_proven(src, now);
             Counters::inc(&shared.counters.verified);
-            match g.commit(&i, ns) {
-                Action::Forward(w) => {
-                    if i.kind == Kind::Close {
-                        g.end_session();
-                    }
-                    Step::Forward(w)
-                }
-                Action::Reply(w, r) => {
-                    if r == Refusal::Replay {
-                        Counters::inc(&shared.counters.retransmits_reacked);
-                    } else {
-                        shared.counters.refuse(r);
-                        Counters::inc(&shared.counters.refusals_answered);
-                    }
-                    if sock.send_to(w.bytes(), src).is_err() {
-                        Counters::inc(&shared.counters.send_errors);
-                    }
-                    Step::Done
-                }
+            let action = g.commit(&i, clock_now);
+            if let Some(e) = g.take_replaced() {
+                // The kernel's open_session below closes it in the module.
+                let e = Ended {
+                    kernel_close: None,
+                    ..e
+                };
+                drop(g);
+                end_in_module(&e, before, ctx.sock, None, shared, ctx.cfg);
+                return finish(action, src, ctx, data.len());
             }
+            drop(g);
+            return finish(action, src, ctx, data.len());
+        }
+        Kind::Close => session.admit(src, FrameKind::CloseSession, now),
+        Kind::Other => session.admit(src, FrameKind::Other, now),
+    };
+    if let Decision::Drop(r) = decision {
+        return Step::Refused(r);
+    }
+    if i.kind != Kind::Hello {
+        Counters::inc(&shared.counters.verified);
+    }
+    let action = g.commit(&i, clock_now);
+    drop(g);
+    finish(action, src, ctx, data.len())
+}
+
+/// Carry out the gate's decision on a datagram of `received` bytes from `src`.
+fn finish(action: Action, src: SocketAddr, ctx: &mut Ctx<'_>, received: usize) -> Step {
+    let shared = ctx.shared;
+    match action {
+        Action::Forward(w) => Step::Forward(w),
+        Action::Challenge(w) => {
+            // Never true with hap-auth's sizes (68 bytes for 48): the rule
+            // is checked where the bytes leave.
+            if w.len > hap_auth::AMPLIFICATION_FACTOR * received {
+                Counters::inc(&shared.counters.amplification_refused);
+                return Step::Done;
+            }
+            if send(ctx.sock, shared, &w, src) {
+                Counters::inc(&shared.counters.cookies_sent);
+                shared
+                    .counters
+                    .cookie_bytes
+                    .fetch_add(w.len as u64, Ordering::Relaxed);
+            }
+            Step::Done
+        }
+        Action::Reply(w, r) => {
+            if r == Refusal::Replay {
+                Counters::inc(&shared.counters.retransmits_reacked);
+            } else {
+                shared.counters.refuse(r);
+                Counters::inc(&shared.counters.refusals_answered);
+            }
+            send(ctx.sock, shared, &w, src);
+            Step::Done
         }
     }
 }

@@ -44,7 +44,8 @@ struct Args {
     /// below SERVO's 80). Default: SCHED_OTHER. Fails if not permitted.
     #[arg(long, value_parser = clap::value_parser!(i32).range(1..=99))]
     rt_priority: Option<i32>,
-    /// Pre-shared key file (64 hex digits, mode 0600; `hapctl keygen`):
+    /// Pre-shared key file (one line: 64 lowercase hex digits; mode 0600;
+    /// weak keys refused; `hapctl keygen`):
     /// only clients holding it can open a session (protocol v2).
     #[arg(long, value_name = "FILE", required_unless_present = "insecure")]
     key: Option<PathBuf>,
@@ -57,11 +58,16 @@ struct Args {
     /// --rt-priority is given. The group must own the two FIFO devices.
     #[arg(long, value_name = "USER[:GROUP]")]
     user: Option<String>,
-    /// Refused datagrams per second a source address (IP and port) may send
-    /// before its datagrams are dropped unexamined (0: no limit). The
-    /// session's client address is never limited.
+    /// Refused datagrams per second a source IP (all its ports together)
+    /// may send before its datagrams are dropped unexamined (0: no limit).
+    /// The session's client address (IP and port) is never dropped.
     #[arg(long, default_value_t = 1000)]
     refusal_budget: u32,
+    /// `open_session` datagrams per second the bridge examines, from all
+    /// sources together, bursts of twice that (0: no limit); beyond, they
+    /// are dropped unexamined (`rejected_handshake_budget`).
+    #[arg(long, default_value_t = 500)]
+    handshake_budget: u32,
     /// With --rt-priority: the share of one CPU, in percent, the receiving
     /// thread may use at that priority over a 100 ms window; a window above
     /// it runs the thread as SCHED_OTHER until a window within it (a flood
@@ -86,6 +92,7 @@ fn main() -> ExitCode {
         stats_interval: Duration::from_secs(1),
         key: None,
         refusal_budget: args.refusal_budget,
+        handshake_budget: args.handshake_budget,
         rt_priority: args.rt_priority,
         rt_budget_percent: args.rt_budget,
     };

@@ -1,12 +1,17 @@
 //! Session pinning: which source address may steer the arm.
 //!
-//! The first valid `OpenSession` from an address pins that address as the
-//! session's client. From then on, datagrams from any other source address
-//! are dropped (a stray host on the network must not steer the arm) until the
-//! client sends `CloseSession` or stays silent for longer than the session
-//! timeout. Frames other than `OpenSession` that arrive while no session is
-//! open are dropped too: the kernel would ignore them, and forwarding them
-//! would let anybody probe the module.
+//! An `OpenSession` (in protocol v2: a proven handshake, `open_proof` with a
+//! valid cookie and tag) pins its source address as the session's client,
+//! replacing any earlier client: in v2 only the key holder can make one,
+//! from an address it receives at (the cookie proves it), so a client
+//! restarted on a new port takes its session back at once. From then on,
+//! other frames from any other source address are dropped (a stray host on
+//! the network must not steer the arm) until the client sends
+//! `CloseSession` or stays silent for longer than the session timeout.
+//! Frames other than `OpenSession` that arrive while no session is open are
+//! dropped too: the kernel would ignore them, and forwarding them would let
+//! anybody probe the module. In `--insecure` v1 an `OpenSession` from
+//! another address than the client's is dropped (anybody can make one).
 
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
@@ -89,6 +94,26 @@ impl Session {
         false
     }
 
+    /// End the session on the bridge's decision (sequence numbers spent):
+    /// returns the client it had.
+    pub fn end(&mut self) -> Option<SocketAddr> {
+        let c = self.client.take();
+        if c.is_some() {
+            self.expired += 1;
+        }
+        c
+    }
+
+    /// A proven handshake from `src` (protocol v2): it takes the session,
+    /// whoever had it.
+    pub fn admit_proven(&mut self, src: SocketAddr, now: Instant) -> Decision {
+        self.expire(now);
+        self.client = Some(src);
+        self.last_seen = now;
+        self.opened += 1;
+        Decision::Forward
+    }
+
     /// Decide what to do with a valid frame of `kind` from `src` at `now`.
     pub fn admit(&mut self, src: SocketAddr, kind: FrameKind, now: Instant) -> Decision {
         self.expire(now);
@@ -151,6 +176,22 @@ mod tests {
         // session) and counted, as the kernel counts it.
         assert_eq!(s.admit(a(1), FrameKind::OpenSession, t), Decision::Forward);
         assert_eq!(s.opened, 2);
+    }
+
+    #[test]
+    fn a_proven_handshake_takes_the_session_from_any_address() {
+        let mut s = Session::new(Duration::from_secs(5));
+        let t = Instant::now();
+        s.admit_proven(a(1), t);
+        assert_eq!(s.admit_proven(a(2), t), Decision::Forward);
+        assert_eq!(s.client(), Some(a(2)));
+        assert_eq!(
+            s.admit(a(1), FrameKind::Other, t),
+            Decision::Drop(Reject::StraySource)
+        );
+        assert_eq!(s.end(), Some(a(2)));
+        assert_eq!(s.client(), None);
+        assert_eq!((s.opened, s.expired), (2, 1));
     }
 
     #[test]

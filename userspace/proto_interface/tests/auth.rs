@@ -16,8 +16,7 @@ use std::time::Duration;
 use hap_auth::{ClientAuth, Psk, Reply, SessionKeys, NONCE_LEN};
 use hap_core::fixed::{Pose, Twist};
 use hap_core::protocol::{
-    decode, encode, expected_len, Frame, FrameHeader, CTRL_ACK_REQUEST, ERROR_REFUSED,
-    MAX_FRAME_LEN,
+    decode, encode, expected_len, Frame, FrameHeader, CTRL_ACK_REQUEST, MAX_FRAME_LEN,
 };
 
 fn tmpdir(tag: &str) -> PathBuf {
@@ -50,6 +49,7 @@ fn vpr() -> Frame {
 }
 
 struct Rig {
+    psk: Psk,
     dir: PathBuf,
     child: Child,
     addr: SocketAddr,
@@ -69,7 +69,8 @@ impl Rig {
     fn start_as(tag: &str, extra: &[&str], fifo_gid: Option<u32>) -> Rig {
         let dir = tmpdir(tag);
         let key = dir.join("key");
-        Psk::test_key().write_new(&key).unwrap();
+        let psk = Psk::generate().unwrap();
+        psk.write_new(&key).unwrap();
         let (rin, rout) = (dir.join("rtf_in"), dir.join("rtf_out"));
         mkfifo(&rin);
         mkfifo(&rout);
@@ -149,6 +150,7 @@ impl Rig {
             }
         });
         Rig {
+            psk,
             dir,
             child,
             addr,
@@ -192,11 +194,15 @@ impl Drop for Rig {
     }
 }
 
-/// Handshake on `sock`; returns the session id.
+/// Handshake on `sock` (both rounds); returns the session id.
 fn handshake(sock: &UdpSocket, c: &mut ClientAuth, nc: u8) -> u16 {
     let open = c.hello(&hdr(1, 0, 0), [nc; NONCE_LEN]);
     sock.send(open.bytes()).unwrap();
     let mut buf = [0u8; 256];
+    let n = sock.recv(&mut buf).expect("cookie");
+    assert!(n <= 3 * open.len, "{n} bytes for {}", open.len);
+    assert_eq!(c.open(&buf[..n]).unwrap().1, Reply::Cookie);
+    sock.send(c.prove(&hdr(1, 0, 0)).unwrap().bytes()).unwrap();
     let n = sock.recv(&mut buf).expect("session_ack");
     let (h, r) = c.open(&buf[..n]).unwrap();
     assert_eq!(r, Reply::SessionAck { period_us: 1000 });
@@ -215,7 +221,7 @@ fn only_the_key_holder_gets_through() {
         &mut b,
     );
     stranger.send(&b[..n]).unwrap();
-    let mut wrong_key = *Psk::test_key().as_bytes();
+    let mut wrong_key = *rig.psk.as_bytes();
     wrong_key[0] ^= 1;
     let mut wrong = ClientAuth::new(Psk::from_bytes(wrong_key));
     stranger
@@ -229,7 +235,7 @@ fn only_the_key_holder_gets_through() {
 
     // The key holder: session, config acked, VPr forwarded as v1.
     let sock = rig.socket();
-    let mut c = ClientAuth::new(Psk::test_key());
+    let mut c = ClientAuth::new(rig.psk.clone());
     let s = handshake(&sock, &mut c, 1);
     assert_eq!(s, 7);
     let w = c
@@ -258,45 +264,123 @@ fn only_the_key_holder_gets_through() {
     assert!(rig.forwarded().is_empty());
     assert_eq!(rig.stat("retransmits_reacked"), 1);
 
-    // Another key holder while the session is held: told so, authenticated.
+    // The key holder restarted on another port: its proven handshake takes
+    // the session at once, and the old address is told why.
     let other = rig.socket();
-    let mut c2 = ClientAuth::new(Psk::test_key());
-    other
-        .send(c2.hello(&hdr(1, 0, 0), [2; NONCE_LEN]).bytes())
-        .unwrap();
-    let n = other.recv(&mut buf).unwrap();
+    let mut c2 = ClientAuth::new(rig.psk.clone());
+    let s2 = handshake(&other, &mut c2, 2);
+    let n = sock
+        .recv(&mut buf)
+        .expect("the notice to the replaced client");
     assert_eq!(
-        c2.open(&buf[..n]).unwrap().1,
-        Reply::HandshakeRefused {
-            reason: ERROR_REFUSED
-        }
+        c.open(&buf[..n]).unwrap().1,
+        Reply::Frame(Frame::Error {
+            reason: hap_auth::ERROR_REPLACED,
+            rejected_seq: 3
+        })
     );
+    assert!(!c.established());
+    assert_eq!(rig.forwarded().len(), 1, "the new open_session");
+    // The old session's frames are refused now (old keys: the tag).
+    sock.send(w.bytes()).unwrap();
     assert!(rig.forwarded().is_empty());
-    assert_eq!(rig.stat("rejected_stray_source"), 1);
-    assert_eq!(rig.stat("refusals_answered"), 1);
+    assert_eq!(rig.stat("rejected_bad_tag"), 2);
 
     // close_session is acknowledged to the closing client.
-    let w = c
-        .seal(&hdr(4, s, CTRL_ACK_REQUEST), &Frame::CloseSession)
+    let w = c2
+        .seal(&hdr(4, s2, CTRL_ACK_REQUEST), &Frame::CloseSession)
         .unwrap();
-    sock.send(w.bytes()).unwrap();
-    let n = sock.recv(&mut buf).expect("the ack of close_session");
+    other.send(w.bytes()).unwrap();
+    let n = other.recv(&mut buf).expect("the ack of close_session");
     assert!(matches!(
-        c.open(&buf[..n]).unwrap().1,
+        c2.open(&buf[..n]).unwrap().1,
         Reply::Frame(Frame::Ack { acked_seq: 4, .. })
     ));
+}
+
+#[test]
+fn a_second_binder_of_the_port_is_refused() {
+    let rig = Rig::start("bind", &[]);
+    // Another process (this one) cannot bind the bridge's port, with or
+    // without SO_REUSEADDR.
+    assert!(UdpSocket::bind(rig.addr).is_err());
+    let e = proto_interface::bind_socket(rig.addr).unwrap_err();
+    assert_eq!(e.kind(), std::io::ErrorKind::AddrInUse);
+    assert!(e.to_string().contains("already in use"), "{e}");
+    // A second bridge on the same port refuses to start, and says why.
+    let key = rig.dir.join("key");
+    let out = Command::new(env!("CARGO_BIN_EXE_proto_interface"))
+        .args(["--bind", "127.0.0.1", "--port"])
+        .arg(rig.addr.port().to_string())
+        .arg("--key")
+        .arg(&key)
+        .args([
+            "--rtf-in",
+            "/nonexistent/in",
+            "--rtf-out",
+            "/nonexistent/out",
+        ])
+        .arg("--no-stats-file")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("already in use"), "{err}");
+}
+
+#[test]
+fn a_weak_or_malformed_key_file_stops_the_bridge_with_a_clear_message() {
+    let dir = tmpdir("weakkey");
+    for (name, content, expect) in [
+        (
+            "test",
+            format!("{}\n", Psk::test_key().to_hex()),
+            "weak key refused",
+        ),
+        ("zero", format!("{}\n", "0".repeat(64)), "weak key refused"),
+        (
+            "space",
+            format!(" {}\n", Psk::generate().unwrap().to_hex()),
+            "not a key file",
+        ),
+        (
+            "upper",
+            format!("{}\n", Psk::generate().unwrap().to_hex().to_uppercase()),
+            "not a key file",
+        ),
+    ] {
+        let p = dir.join(name);
+        use std::os::unix::fs::OpenOptionsExt;
+        let mut f = File::options()
+            .write(true)
+            .create_new(true)
+            .mode(0o600)
+            .open(&p)
+            .unwrap();
+        f.write_all(content.as_bytes()).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_proto_interface"))
+            .args(["--bind", "127.0.0.1", "--port", "0", "--key"])
+            .arg(&p)
+            .arg("--no-stats-file")
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{name}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(expect), "{name}: {err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn spoofed_and_forged_datagrams_never_reach_the_kernel() {
     let rig = Rig::start("forge", &[]);
     let sock = rig.socket();
-    let mut c = ClientAuth::new(Psk::test_key());
+    let mut c = ClientAuth::new(rig.psk.clone());
     let s = handshake(&sock, &mut c, 3);
     assert_eq!(rig.forwarded().len(), 1);
     // From the session's own source address: a forged frame (guessed keys),
     // a replay, and 10^4 frames with random tags.
-    let guessed = SessionKeys::derive(&Psk::test_key(), &[3; 16], &[0; 16]);
+    let guessed = SessionKeys::derive(&rig.psk, &[3; 16], &[0; 16]);
     let forged = hap_auth::seal_request(&guessed, &hdr(10, s, 0), &vpr()).unwrap();
     sock.send(forged.bytes()).unwrap();
     let real = c.seal(&hdr(11, s, 0), &vpr()).unwrap();
@@ -342,11 +426,14 @@ fn spoofed_and_forged_datagrams_never_reach_the_kernel() {
     assert!(limited > 0, "the flood was never limited");
     // Loopback may drop datagrams of a burst (socket buffer): every one
     // that arrived is accounted for.
-    assert_eq!(bad_tag + limited + 1 + 3, rig.stat("received"));
+    // (+ 1 replay, + 4: the two handshake rounds, the real frame, the one
+    // after the flood.)
+    assert_eq!(bad_tag + limited + 1 + 4, rig.stat("received"));
     assert!(bad_tag > 1000, "{bad_tag}");
+    // Every datagram forwarded, refused, or answered with a cookie.
     assert_eq!(
         rig.stat("received"),
-        rig.stat("forwarded") + rig.stat("rejected")
+        rig.stat("forwarded") + rig.stat("rejected") + rig.stat("cookies_sent")
     );
 }
 
@@ -362,7 +449,7 @@ fn runs_unprivileged_with_only_the_fifos() {
     }
     let rig = Rig::start_as("priv", &["--user", "65534:65534"], Some(65534));
     let sock = rig.socket();
-    let mut c = ClientAuth::new(Psk::test_key());
+    let mut c = ClientAuth::new(rig.psk.clone());
     let s = handshake(&sock, &mut c, 5);
     sock.send(c.seal(&hdr(2, s, 0), &vpr()).unwrap().bytes())
         .unwrap();

@@ -50,7 +50,8 @@ fn the_client_library_through_the_bridge() {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let key = dir.join("hap.key");
-    Psk::test_key().write_new(&key).unwrap();
+    let psk = Psk::generate().unwrap();
+    psk.write_new(&key).unwrap();
     let (rin, rout) = (dir.join("rtf_in"), dir.join("rtf_out"));
     mkfifo(&rin);
     mkfifo(&rout);
@@ -167,7 +168,7 @@ fn the_client_library_through_the_bridge() {
         let e = VirtContext::open_with(&addr, quick(None));
         assert!(matches!(e, Err(VirtError::Timeout(_))), "{:?}", e.err());
     }
-    let mut other = *Psk::test_key().as_bytes();
+    let mut other = *psk.as_bytes();
     other[9] ^= 4;
     let e = VirtContext::open_with(&addr, quick(Some(Psk::from_bytes(other))));
     assert!(matches!(e, Err(VirtError::Timeout(_))), "{:?}", e.err());

@@ -159,7 +159,7 @@ impl From<std::io::Error> for VirtError {
 pub type Result<T> = std::result::Result<T, VirtError>;
 
 /// Timeouts, retries and the key.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct Options {
     /// How long to wait for the Ack of one attempt, and for the SessionAck
     /// of the first OpenSession (each further one waits twice as long).
@@ -241,6 +241,8 @@ pub const RTT_LOG_MAX: usize = 1 << 20;
 struct State {
     /// The bridge refused the authenticated handshake (reason).
     handshake_refused: Option<u32>,
+    /// Why the controller ended the session (`error` 0x100, 0x102–0x104).
+    session_ended: Option<u32>,
     session: u16,
     session_nonce: u32,
     session_ack: Option<(u16, u32)>,
@@ -308,9 +310,12 @@ impl Inner {
                     Err(p) => p.into_inner(),
                 };
                 let w = if let Frame::OpenSession { .. } = frame {
-                    // A fresh nonce for every attempt: the bridge refuses a
-                    // nonce it has already seen.
+                    // A fresh nonce for every attempt: the first round of the
+                    // handshake (the receiver answers the cookie).
                     Some(a.hello(&h, hap_auth::fresh_nonce()?))
+                } else if a.exhausted() || !a.established() {
+                    // Spent, or ended by the controller (`session_ended`).
+                    return Err(VirtError::Closed);
                 } else {
                     a.seal(&h, frame)
                 };
@@ -484,7 +489,7 @@ impl VirtContext {
     /// Open with explicit timeouts.
     pub fn open_with(addr: &str, opts: Options) -> Result<VirtContext> {
         let peer = parse_address(addr)?;
-        let key = match (opts.key, split_options(addr.trim())?.1) {
+        let key = match (opts.key.clone(), split_options(addr.trim())?.1) {
             (Some(k), _) => Some(k),
             (None, Some(path)) => Some(load_key(path)?),
             (None, None) => match std::env::var(KEY_ENV) {
@@ -512,6 +517,7 @@ impl VirtContext {
             auth: key.map(|k| Mutex::new(ClientAuth::new(k))),
             state: Mutex::new(State {
                 handshake_refused: None,
+                session_ended: None,
                 session: 0,
                 session_nonce: nonce,
                 session_ack: None,
@@ -542,7 +548,7 @@ impl VirtContext {
         let mut vc = VirtContext {
             inner,
             rx: Some(rx),
-            opts,
+            opts: opts.clone(),
             peer,
             force_factor: 1.0,
             speed_factor: 1.0,
@@ -612,6 +618,14 @@ impl VirtContext {
         self.peer
     }
 
+    /// Why the controller ended the session, if it did (protocol v2: the
+    /// `error` reason, `ERROR_NO_SESSION` or `hap_auth::ERROR_REPLACED`,
+    /// `ERROR_EXPIRED`, `ERROR_SEQ_EXHAUSTED`); requests then fail with
+    /// `VirtError::Closed`: open a new context.
+    pub fn session_ended(&self) -> Option<u32> {
+        self.inner.lock().session_ended
+    }
+
     /// Session id granted by the controller.
     pub fn session_id(&self) -> u16 {
         self.inner.lock().session
@@ -624,7 +638,7 @@ impl VirtContext {
 
     /// Timeouts and retries in use.
     pub fn options(&self) -> Options {
-        self.opts
+        self.opts.clone()
     }
 
     fn check_open(&self) -> Result<()> {
@@ -985,7 +999,12 @@ impl Drop for VirtContext {
 fn reason_name(reason: u32) -> String {
     match reason {
         ERROR_NO_SESSION => "no session".into(),
-        ERROR_REFUSED => "refused: another client holds the session".into(),
+        ERROR_REFUSED => "refused: the controller cannot take a handshake now".into(),
+        hap_auth::ERROR_REPLACED => "session replaced by a newer handshake with this key".into(),
+        hap_auth::ERROR_EXPIRED => "session expired (the client was silent too long)".into(),
+        hap_auth::ERROR_SEQ_EXHAUSTED => {
+            "session ended: its sequence numbers are spent (open a new one)".into()
+        }
         r => match DecodeError::from_index(r as usize) {
             Some(e) => e.name().into(),
             None => format!("reason {r}"),
@@ -1008,6 +1027,24 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
                     Err(p) => p.into_inner().open(&buf[..n]),
                 };
                 match r {
+                    Ok((_, AuthReply::Cookie)) => {
+                        // The bridge's cookie: prove the key over it. The
+                        // open_proof's sequence number starts the session.
+                        let h = FrameHeader {
+                            control: 0,
+                            session: 0,
+                            seq: inner.next_seq(),
+                            timestamp_us: inner.now_us(),
+                        };
+                        let proof = match a.lock() {
+                            Ok(g) => g.prove(&h),
+                            Err(p) => p.into_inner().prove(&h),
+                        };
+                        if let Some(w) = proof {
+                            let _ = inner.sock.send(w.bytes());
+                        }
+                        continue;
+                    }
                     Ok((h, AuthReply::Frame(f))) => Some((h, f)),
                     Ok((h, AuthReply::SessionAck { period_us })) => {
                         // Verified against this handshake's nonce: the v1
@@ -1065,6 +1102,16 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
             } => {
                 if st.session_ack.is_some() {
                     account_seq(&mut st, h.seq);
+                }
+                let ends = matches!(
+                    reason,
+                    ERROR_NO_SESSION
+                        | hap_auth::ERROR_REPLACED
+                        | hap_auth::ERROR_EXPIRED
+                        | hap_auth::ERROR_SEQ_EXHAUSTED
+                );
+                if inner.auth.is_some() && ends {
+                    st.session_ended = Some(reason);
                 }
                 if st.replies.len() > 1024 {
                     st.replies.clear();

@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use hap_auth::{Action, Gate, Psk};
+use hap_auth::{Action, EndReason, Gate, Psk};
 use hap_core::config::CommandType;
 use hap_core::proto_in::ProtoIn;
 use hap_core::protocol::{encode, Answer, Frame, FrameHeader, MAX_FRAME_LEN};
@@ -28,6 +28,13 @@ impl Drop for Peer {
 }
 
 fn peer() -> Peer {
+    peer_ending_after(None)
+}
+
+/// As `peer`; with `Some(end_after)`, the gate ends the session as expired after
+/// `end_after` forwarded requests (what the bridge does after a silence): it tells
+/// the client and closes the session in PROTO_IN.
+fn peer_ending_after(end_after: Option<usize>) -> Peer {
     let sock = UdpSocket::bind("127.0.0.1:0").unwrap();
     sock.set_read_timeout(Some(Duration::from_millis(20)))
         .unwrap();
@@ -36,24 +43,35 @@ fn peer() -> Peer {
     let kernel = Arc::new(Mutex::new(ProtoIn::new()));
     let (st, k) = (stop.clone(), kernel.clone());
     std::thread::spawn(move || {
-        let mut gate = Gate::new(Psk::test_key());
+        let mut gate = Gate::with_random_secret(psk()).unwrap();
+        let t0 = std::time::Instant::now();
         let mut buf = [0u8; 256];
         let mut seq = 0u32;
         let mut client = None;
+        let mut forwarded = 0usize;
         while !st.load(Ordering::SeqCst) {
             let mut out: Vec<Frame> = Vec::new();
             if let Ok((n, src)) = sock.recv_from(&mut buf) {
-                let Ok(i) = gate.inspect(&buf[..n]) else {
+                let Ok(i) = gate.inspect(&buf[..n], src, t0.elapsed()) else {
                     continue;
                 };
-                match gate.commit(&i, [seq as u8; 16]) {
-                    Action::Reply(w, _) => {
+                match gate.commit(&i, t0.elapsed()) {
+                    Action::Reply(w, _) | Action::Challenge(w) => {
                         let _ = sock.send_to(w.bytes(), src);
                     }
                     Action::Forward(v1) => {
                         client = Some(src);
                         let o = k.lock().unwrap().handle(v1.bytes(), 1, 1000);
                         out.extend(o.reply);
+                        forwarded += 1;
+                        if Some(forwarded) == end_after {
+                            if let Some(e) = gate.end_session(EndReason::Expired) {
+                                let _ = sock.send_to(e.notice.bytes(), src);
+                                if let Some(c) = e.kernel_close {
+                                    k.lock().unwrap().handle(c.bytes(), 1, 1000);
+                                }
+                            }
+                        }
                     }
                 }
             }
@@ -84,6 +102,13 @@ fn peer() -> Peer {
     Peer { addr, stop, kernel }
 }
 
+/// The key of this test process's peers (generated: a key file must not
+/// hold the published test key).
+fn psk() -> Psk {
+    static KEY: std::sync::OnceLock<Psk> = std::sync::OnceLock::new();
+    KEY.get_or_init(|| Psk::generate().unwrap()).clone()
+}
+
 fn quick(key: Option<Psk>) -> Options {
     Options {
         reply_timeout: Duration::from_millis(150),
@@ -95,7 +120,7 @@ fn quick(key: Option<Psk>) -> Options {
 #[test]
 fn the_key_holder_opens_configures_and_streams() {
     let p = peer();
-    let mut vc = VirtContext::open_with(&p.addr, quick(Some(Psk::test_key()))).unwrap();
+    let mut vc = VirtContext::open_with(&p.addr, quick(Some(psk()))).unwrap();
     assert!(vc.authenticated());
     assert_ne!(vc.session_id(), 0);
     vc.set_command_type(CommandType::Impedance).unwrap();
@@ -116,7 +141,7 @@ fn the_key_holder_opens_configures_and_streams() {
 #[test]
 fn without_the_key_nothing_happens() {
     let p = peer();
-    let mut other = *Psk::test_key().as_bytes();
+    let mut other = *psk().as_bytes();
     other[5] ^= 0x10;
     let e = VirtContext::open_with(&p.addr, quick(Some(Psk::from_bytes(other))));
     assert!(
@@ -139,7 +164,7 @@ fn the_key_file_in_the_address() {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let key = dir.join("hap.key");
-    Psk::test_key().write_new(&key).unwrap();
+    psk().write_new(&key).unwrap();
     let url = format!("{}?key={}", p.addr, key.display());
     let mut vc = VirtContext::open_with(&url, quick(None)).unwrap();
     assert!(vc.authenticated());
@@ -154,4 +179,28 @@ fn the_key_file_in_the_address() {
         e.err()
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_session_the_bridge_ends_is_reported_and_closed_in_proto_in() {
+    // Forwarded: open_proof (1), set_command_type (2), then expiry.
+    let p = peer_ending_after(Some(2));
+    let vc = VirtContext::open_with(&p.addr, quick(Some(psk()))).unwrap();
+    // The request the session ended on is answered with the reason (the
+    // notice names the newest request the bridge accepted).
+    let e = vc.set_command_type(CommandType::Impedance).unwrap_err();
+    assert!(
+        matches!(&e, VirtError::Refused { reason: 0x103, name, .. } if name.contains("expired")),
+        "{e:?}"
+    );
+    let deadline = std::time::Instant::now() + Duration::from_secs(2);
+    while vc.session_ended().is_none() && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(vc.session_ended(), Some(hap_auth::ERROR_EXPIRED));
+    assert_eq!(p.kernel.lock().unwrap().session(), 0, "PROTO_IN closed it");
+    assert!(matches!(
+        vc.set_position(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
+        Err(VirtError::Closed)
+    ));
 }
