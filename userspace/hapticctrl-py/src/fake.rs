@@ -11,7 +11,7 @@ use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use hap_auth::{Action, Gate, Kind, Psk, Refusal};
 use virtuose_api::fake_peer::{FakePeer, FakePeerConfig, FakePeerStats};
@@ -45,6 +45,8 @@ struct Shared {
     link_up: AtomicBool,
     /// `None`: protocol v1 relayed verbatim (a bridge run `--insecure`).
     gate: Option<Mutex<Gate>>,
+    /// The gate's clock (cookie lifetimes) starts here.
+    epoch: Instant,
     client: Mutex<Option<SocketAddr>>,
     stats: Mutex<RelayStats>,
 }
@@ -78,7 +80,11 @@ impl AuthFake {
         let shared = Arc::new(Shared {
             stop: AtomicBool::new(false),
             link_up: AtomicBool::new(true),
-            gate: key.map(|k| Mutex::new(Gate::new(k))),
+            gate: match key {
+                Some(k) => Some(Mutex::new(Gate::with_random_secret(k)?)),
+                None => None,
+            },
+            epoch: Instant::now(),
             client: Mutex::new(None),
             stats: Mutex::new(RelayStats::default()),
         });
@@ -152,44 +158,40 @@ fn client_to_peer(front: &UdpSocket, back: &UdpSocket, s: &Shared) {
             }
             continue;
         };
+        let now = s.epoch.elapsed();
         let mut g = lock(gate);
-        let i = match g.inspect(&buf[..n]) {
+        let i = match g.inspect(&buf[..n], src, now) {
             Ok(i) => i,
             Err(r) => {
                 refuse(s, r);
                 continue;
             }
         };
-        // The bridge's address policy: one client at a time; a key holder
-        // asking while another holds the session is told so.
+        // The bridge's address policy: requests of the open session come
+        // from the address that proved the key; a proven handshake from
+        // any address takes the session (its holder is told by the gate).
         let holder = *lock(&s.client);
-        if holder.is_some_and(|c| c != src) && g.session_id() != 0 {
-            if let Some(w) = g.refusal(&i, 0, 0) {
-                let _ = front.send_to(w.bytes(), src);
-            }
+        if matches!(i.kind, Kind::Close | Kind::Other) && holder.is_some_and(|c| c != src) {
             refuse(s, Refusal::StraySource);
             continue;
         }
-        let ns = if i.kind == Kind::Open {
-            match hap_auth::fresh_nonce() {
-                Ok(n) => n,
-                Err(_) => continue,
-            }
-        } else {
-            [0u8; hap_auth::NONCE_LEN]
-        };
-        match g.commit(&i, ns) {
+        match g.commit(&i, now) {
             Action::Forward(w) => {
-                if i.kind == Kind::Open {
+                if i.kind == Kind::Proof {
                     lock(&s.stats).handshakes += 1;
+                    *lock(&s.client) = Some(src);
+                    if let Some(e) = g.take_replaced() {
+                        if let Some(old) = holder.filter(|c| *c != src) {
+                            let _ = front.send_to(e.notice.bytes(), old);
+                        }
+                    }
                 }
-                if i.kind == Kind::Close {
-                    g.end_session();
-                }
-                *lock(&s.client) = Some(src);
                 if back.send(w.bytes()).is_ok() {
                     lock(&s.stats).forwarded += 1;
                 }
+            }
+            Action::Challenge(w) => {
+                let _ = front.send_to(w.bytes(), src);
             }
             Action::Reply(w, r) => {
                 if r != Refusal::Replay {
@@ -276,7 +278,7 @@ mod tests {
     }
 
     #[test]
-    fn another_key_is_refused_and_a_second_holder_told() {
+    fn another_key_is_refused_and_a_second_holder_takes_the_session() {
         let f = fake();
         let mut other = *Psk::test_key().as_bytes();
         other[0] ^= 1;
@@ -284,10 +286,12 @@ mod tests {
         assert!(matches!(e, Err(VirtError::Timeout("open_session"))));
         assert!(f.relay_stats().refused.get("bad_tag").copied().unwrap_or(0) >= 1);
         assert_eq!(f.relay_stats().handshakes, 0);
-        let _first = VirtContext::open_with(&f.address(), quick(Some(Psk::test_key()))).unwrap();
-        let e = VirtContext::open_with(&f.address(), quick(Some(Psk::test_key())));
-        assert!(
-            matches!(e, Err(VirtError::Refused { reason, .. }) if reason == hap_core::protocol::ERROR_REFUSED)
-        );
+        // A proven handshake takes the session (protocol.md §7): the
+        // second key holder gets it, the first is told it was replaced.
+        let first = VirtContext::open_with(&f.address(), quick(Some(Psk::test_key()))).unwrap();
+        let second = VirtContext::open_with(&f.address(), quick(Some(Psk::test_key())));
+        assert!(second.is_ok(), "{:?}", second.err());
+        assert_eq!(f.relay_stats().handshakes, 2);
+        drop(first);
     }
 }

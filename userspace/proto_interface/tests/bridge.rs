@@ -255,6 +255,9 @@ fn forwards_drops_and_routes() {
         let junk: Vec<u8> = (0..len).map(|k| (k as u32 ^ i) as u8).collect();
         let _ = b.send(&junk);
     }
+    // Let the bridge drain its socket (a full receive buffer would drop the
+    // next datagram in the kernel, before the bridge sees it).
+    std::thread::sleep(Duration::from_millis(300));
     a.send(&enc(7, &Frame::DetachVirtualObject)).unwrap();
     assert_eq!(rig.next_frame(), Some(Frame::DetachVirtualObject));
     rig.no_frame();
