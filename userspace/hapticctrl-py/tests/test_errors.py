@@ -3,7 +3,9 @@ code and the library's message."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import time
 
 import numpy as np
 import pytest
@@ -70,14 +72,27 @@ def test_insecure_with_a_key_is_a_contradiction(fake, key_file):
         hc.Session(fake.address, key=key_file, insecure=True)
 
 
-def test_a_second_key_holder_is_told_the_session_is_taken(fake, key_file):
-    with hc.Session(fake.address, key=key_file):
-        with pytest.raises(hc.RefusedError) as e:
-            hc.Session(fake.address, key=key_file, reply_timeout=0.1, attempts=2)
-    assert e.value.code == 17
-    assert e.value.reason == 0x101
-    assert e.value.request == "open_session"
-    assert "another client holds the session" in e.value.reason_name
+def test_a_second_key_holder_takes_the_session_and_the_first_is_told(fake, key_file):
+    # A proven handshake takes the session (protocol.md §7): the second key
+    # holder gets it; the first is told (error 0x102) and its context closes.
+    first = hc.Session(fake.address, key=key_file, reply_timeout=0.2, attempts=2)
+    second = hc.Session(fake.address, key=key_file, reply_timeout=0.5, attempts=2)
+    try:
+        assert not second.closed
+        told = False
+        for _ in range(50):
+            try:
+                first.set_power_on(False)
+            except hc.VirtuoseError:
+                told = True
+                break
+            time.sleep(0.02)
+        assert told, "the replaced holder was never told"
+        second.set_power_on(False)
+    finally:
+        second.close()
+        with contextlib.suppress(hc.VirtuoseError):
+            first.close()
 
 
 def test_no_data_before_the_first_answer(start_fake, key_file):
