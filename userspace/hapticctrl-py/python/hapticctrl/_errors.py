@@ -48,7 +48,8 @@ class ControllerTimeoutError(VirtuoseError, TimeoutError):
 class RefusedError(VirtuoseError):
     """The controller refused a request: ``request``, ``reason`` (the
     protocol's reason code) and ``reason_name``. Code ``VIRT_E_WRONG_MODE``
-    when another client holds the session, ``VIRT_E_COMMUNICATION_FAILURE``
+    when the bridge cannot take the handshake now (0x101),
+    ``VIRT_E_COMMUNICATION_FAILURE``
     for no session, else ``VIRT_E_INCORRECT_VALUE``."""
 
     request: str
