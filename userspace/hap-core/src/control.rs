@@ -677,7 +677,7 @@ pub fn cartesian_control(
             position: t_pos,
             orientation: t_rot,
         };
-        if ctrl.coupled && env_prev.0 > 0 {
+        if ctrl.coupled && env_prev.0 > 0 && config.command_type != CommandType::VirtMech {
             // Force-impulse limit: the anchor follows the client's target by
             // at most what changes the spring's force by `impulse_force`
             // (torque by `impulse_torque`) this cycle. The spring stays a
