@@ -39,7 +39,7 @@ fn quick(key: Option<Psk>) -> Options {
 /// session, which the count below would see).
 fn patient(key: Option<Psk>) -> Options {
     Options {
-        reply_timeout: Duration::from_secs(3),
+        reply_timeout: Duration::from_secs(10),
         ..quick(key)
     }
 }
