@@ -752,17 +752,14 @@ pub fn cartesian_control(
         ctrl.prev_k = g;
         let dv = clamp_vec(t_v.sub(v_h), V_CLAMP);
         let dw = clamp_vec(t_w.sub(w_h), W_CLAMP);
-        // The saturated spring–damper wrench of a stretch (and its
-        // unsaturated force and torque, for the slip).
+        // The spring–damper wrench of a stretch, saturated at the force
+        // limit (and whether it saturated).
         let spring_at = |d_eff: Vec3, e_eff: Vec3| {
-            let f = d_eff.scale(g.k_lin).add(dv.scale(g.b_lin));
-            let tq = e_eff.scale(g.k_rot).add(dw.scale(g.b_rot));
-            let (w, sat) = Wrench {
-                force: f,
-                torque: tq,
+            Wrench {
+                force: d_eff.scale(g.k_lin).add(dv.scale(g.b_lin)),
+                torque: e_eff.scale(g.k_rot).add(dw.scale(g.b_rot)),
             }
-            .saturate(f_lim, MAX_TORQUE);
-            (w, sat, f, tq)
+            .saturate(f_lim, MAX_TORQUE)
         };
         let mut sw = spring_at(d_eff, e_eff);
         // The spring right after the client's step, before the envelope
@@ -833,7 +830,7 @@ pub fn cartesian_control(
             }
         }
         spring = Some((d, e, d_eff, e_eff, sw.0.force));
-        let (mut w, sat, _, _) = sw;
+        let (mut w, sat) = sw;
         if sat {
             // The saturated spring is a function of the handle's pose around
             // its anchor: it stores V(d) (`spring_energy`) and gives back
