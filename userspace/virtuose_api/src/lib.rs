@@ -198,7 +198,8 @@ pub struct LinkStats {
     pub stale: u64,
     /// Datagrams that did not decode.
     pub decode_errors: u64,
-    /// Answers per second over the last measurement window (~0.5 s).
+    /// Answers per second over the last measurement window (~0.5 s); before
+    /// the first window closes, over the answers seen so far (0: none yet).
     pub rate_hz: f64,
     /// lost / (received + lost) over the whole session.
     pub loss_ratio: f64,
@@ -932,8 +933,10 @@ impl VirtContext {
         } else {
             0.0
         };
+        // Before the first window closes: the rate over what was seen so far
+        // (a session that ran its answers in less than a window has one).
         let el = st.window_start.elapsed().as_secs_f64();
-        if s.rate_hz == 0.0 && el > 0.05 {
+        if s.rate_hz == 0.0 && st.window_count > 0 && el > 0.0 {
             s.rate_hz = st.window_count as f64 / el;
         }
         s
