@@ -223,8 +223,14 @@ pub fn cartesian_brake_gain(period: Fx) -> Fx {
     B_BRAKE.min(M_HANDLE_MIN.half().div_sat(t))
 }
 
-/// The slip is taken back once every this many cycles.
+/// The slip is taken back once every this many cycles at short periods
+/// (the energies it costs take a few roots); every cycle from
+/// `TAKEBACK_EVERY_CYCLE_FROM` on, so that one take-back step stays one ramp
+/// step (0.4 N at 1 ms) where a cycle is long enough to feel.
 const TAKEBACK_EVERY: u32 = 4;
+
+/// Period from which the slip is taken back every cycle (500 µs).
+const TAKEBACK_EVERY_CYCLE_FROM: Fx = Fx::from_ratio(1, 2000);
 
 /// Cycles the force limit holds after it was lowered: 5 ms worth
 /// (`RAMP_US`/10), from the ramp step `T/RAMP_US`.
@@ -291,8 +297,11 @@ pub struct Controller {
     /// Cycles left before the force limit may rise again after it was
     /// lowered (`limit_hold_cycles`).
     limit_hold: u32,
-    /// Counts cycles for the slip's take-back (every `TAKEBACK_EVERY`).
+    /// Counts cycles for the slip's take-back (every `takeback_every`).
     takeback_phase: u32,
+    /// Cycles between two take-back steps (`TAKEBACK_EVERY`, or 1 from
+    /// `TAKEBACK_EVERY_CYCLE_FROM`).
+    takeback_every: u32,
     prev_q: Joints,
     /// The spring's anchor (raw arm frame): the client's target, reached
     /// within the force-impulse limit; held while the envelope ramps down.
@@ -374,6 +383,7 @@ impl Controller {
             force_limit: MAX_FORCE,
             limit_hold: 0,
             takeback_phase: 0,
+            takeback_every: TAKEBACK_EVERY,
             prev_q: JOINTS_ZERO,
             held_target: Pose::IDENTITY,
             impulse_force: Fx::ZERO,
@@ -408,6 +418,11 @@ impl Controller {
         self.impulse_torque = TORQUE_IMPULSE_NM_PER_MS.mul_sat(ms);
         self.brake_lin = cartesian_brake_gain(period);
         self.anchor_step = V_ANCHOR_MAX.mul_sat(period);
+        self.takeback_every = if period >= TAKEBACK_EVERY_CYCLE_FROM {
+            1
+        } else {
+            TAKEBACK_EVERY
+        };
     }
 
     pub fn po_energy(&self) -> Fx {
@@ -920,23 +935,6 @@ pub fn cartesian_control(
     // common case).
     let fast = v_h.norm_sq() > V_BRAKE_ONSET.mul_sat(V_BRAKE_ONSET);
     let v_lin = if fast { v_h.norm() } else { Fx::ZERO };
-    if fast && v_lin > V_BRAKE_ONSET {
-        alarms |= alarm::VELOCITY_LIMIT;
-        // −B_c (|v| − v_on) v̂, as one vector scaled to the motors' room.
-        let mag = ctrl.brake_lin.mul_sat(v_lin.sub_sat(V_BRAKE_ONSET));
-        let f_b = v_h.scale(mag.div_sat(v_lin)).neg();
-        let brake_tau = kin.jacobian_transpose_mul(&Wrench {
-            force: f_b,
-            torque: Vec3::ZERO,
-        });
-        let mut sb = Fx::ONE;
-        for ((bt, tf), lim) in brake_tau.iter().zip(fixed.iter()).zip(arm::TAU_MAX.iter()) {
-            sb = sb.min(fit_scale(*tf, *bt, *lim));
-        }
-        for (t, bt) in fixed.iter_mut().zip(brake_tau.iter()) {
-            *t = t.add_sat(bt.mul_sat(sb));
-        }
-    }
 
     // ---- Coupling torques: force first. The force's joint torques J_vᵀf
     // get the largest scale s_f ≤ 1 the motors' room (left by the fixed
@@ -984,20 +982,39 @@ pub fn cartesian_control(
             force: handle_wrench.force,
             torque: Vec3::ZERO,
         });
-        for ((tc, tf), lim) in tau_f.iter().zip(fixed.iter()).zip(arm::TAU_MAX.iter()) {
-            s_f = s_f.min(fit_scale(*tf, *tc, *lim));
+        // Jᵀ is linear: the torque's share is what is left of the whole.
+        let mut tau_t = JOINTS_ZERO;
+        for ((tt, tw), tf) in tau_t.iter_mut().zip(tau_w.iter()).zip(tau_f.iter()) {
+            *tt = tw.sub_sat(*tf);
         }
-        let tau_t = kin.jacobian_transpose_mul(&Wrench {
-            force: Vec3::ZERO,
-            torque: handle_wrench.torque,
-        });
-        for (((tt, tc), tf), lim) in tau_t
+        // The force's largest scale with the torque in full (where the
+        // torque's joint torques offset the force's, the force keeps that
+        // room: no step when the whole wrench stops fitting), and without
+        // the torque; the larger wins, and the torque gets what is left.
+        let (mut s_full, mut s_none, mut torque_fits) = (Fx::ONE, Fx::ONE, true);
+        for (((tc, tt), tf), lim) in tau_f
             .iter()
-            .zip(tau_f.iter())
+            .zip(tau_t.iter())
             .zip(fixed.iter())
             .zip(arm::TAU_MAX.iter())
         {
-            s_t = s_t.min(fit_scale(tf.add_sat(tc.mul_sat(s_f)), *tt, *lim));
+            let with_t = tf.add_sat(*tt);
+            torque_fits &= with_t.abs() <= *lim;
+            s_full = s_full.min(fit_scale(with_t, *tc, *lim));
+            s_none = s_none.min(fit_scale(*tf, *tc, *lim));
+        }
+        if torque_fits && s_full >= s_none {
+            s_f = s_full;
+        } else {
+            s_f = s_none;
+            for (((tt, tc), tf), lim) in tau_t
+                .iter()
+                .zip(tau_f.iter())
+                .zip(fixed.iter())
+                .zip(arm::TAU_MAX.iter())
+            {
+                s_t = s_t.min(fit_scale(tf.add_sat(tc.mul_sat(s_f)), *tt, *lim));
+            }
         }
         alarms |= alarm::TORQUE_SATURATED;
         handle_wrench = Wrench {
@@ -1006,6 +1023,32 @@ pub fn cartesian_control(
         };
         for ((o, tc), tt) in tau_c.iter_mut().zip(tau_f.iter()).zip(tau_t.iter()) {
             *o = tc.mul_sat(s_f).add_sat(tt.mul_sat(s_t));
+        }
+    }
+    // ---- The Cartesian brake, with the motors' room the coupling left: a
+    // spring that already resists the motion with all the motors have keeps
+    // it (its force limit does not fall because a brake took its share),
+    // and the brake adds what is left along the motion.
+    if fast && v_lin > V_BRAKE_ONSET {
+        alarms |= alarm::VELOCITY_LIMIT;
+        // −B_c (|v| − v_on) v̂, as one vector scaled to the motors' room.
+        let mag = ctrl.brake_lin.mul_sat(v_lin.sub_sat(V_BRAKE_ONSET));
+        let f_b = v_h.scale(mag.div_sat(v_lin)).neg();
+        let brake_tau = kin.jacobian_transpose_mul(&Wrench {
+            force: f_b,
+            torque: Vec3::ZERO,
+        });
+        let mut sb = Fx::ONE;
+        for (((bt, tf), tc), lim) in brake_tau
+            .iter()
+            .zip(fixed.iter())
+            .zip(tau_c.iter())
+            .zip(arm::TAU_MAX.iter())
+        {
+            sb = sb.min(fit_scale(tf.add_sat(*tc), *bt, *lim));
+        }
+        for (t, bt) in fixed.iter_mut().zip(brake_tau.iter()) {
+            *t = t.add_sat(bt.mul_sat(sb));
         }
     }
     let s = s_f.min(s_t).mul_sat(speed_s);
@@ -1078,16 +1121,17 @@ pub fn cartesian_control(
                 ctrl.force_limit = raised;
             }
         }
-        // Taken back once every `TAKEBACK_EVERY` cycles by that many ramp
+        // Taken back once every `takeback_every` cycles by that many ramp
         // steps (at most 0.4 N/ms still; the energies cost a few roots).
         ctrl.takeback_phase = ctrl.takeback_phase.wrapping_add(1);
-        if (ctrl.slip != Vec3::ZERO || ctrl.slip_rot != Vec3::ZERO)
-            && lt >= Fx::ONE
-            && ctrl.takeback_phase % TAKEBACK_EVERY == 0
-        {
+        let due = ctrl.takeback_phase >= ctrl.takeback_every;
+        if due {
+            ctrl.takeback_phase = 0;
+        }
+        if (ctrl.slip != Vec3::ZERO || ctrl.slip_rot != Vec3::ZERO) && lt >= Fx::ONE && due {
             let step = MAX_FORCE
                 .mul_sat(ctrl.ramp_step)
-                .mul_int(i64::from(TAKEBACK_EVERY));
+                .mul_int(i64::from(ctrl.takeback_every));
             let dl = if g.k_lin.0 > 0 {
                 step.div_sat(g.k_lin)
             } else {
@@ -1095,7 +1139,7 @@ pub fn cartesian_control(
             };
             let step_t = MAX_TORQUE
                 .mul_sat(ctrl.ramp_step)
-                .mul_int(i64::from(TAKEBACK_EVERY));
+                .mul_int(i64::from(ctrl.takeback_every));
             let dr = if g.k_rot.0 > 0 {
                 step_t.div_sat(g.k_rot)
             } else {
