@@ -3,7 +3,9 @@
 //! felt stiffness of a rigid wall per period, the 10 N / 5 N penetration
 //! ratio where the motors can give 10 N, the wall back where it was after a
 //! push beyond the motors' capacity (the spring does not slip), and the
-//! largest force step in one 1 ms cycle for client-driven changes.
+//! largest force step in one 1 ms cycle for client-driven changes and after
+//! a power-on next to the object, and a fast push (Cartesian brake engaged)
+//! that keeps the spring's force limit.
 //! Through `ServoCycle::run` with a `MotorLine`, host, deterministic.
 
 use hap_core::arm;
@@ -217,4 +219,85 @@ fn client_driven_force_steps_stay_below_2_n_per_1_ms_cycle() {
     println!("largest step: alternating ±2 cm {alternating:.3} N, 10 cm jump {jump:.3} N");
     assert!(alternating <= 2.0, "{alternating}");
     assert!(jump <= 2.0, "{jump}");
+}
+
+#[test]
+fn a_fast_push_beyond_the_capacity_keeps_the_spring_and_the_wall_comes_back() {
+    // Centre pose downward: the motors give 18.8 N. A 23.5 N push for 0.3 s
+    // drives the handle beyond 1 m/s, where the Cartesian brake engages. The
+    // brake gets the motors' room the coupling left, so the spring's force
+    // limit stays near the capacity (when the brake was served first it fell
+    // to 0, and the wall stayed soft for more than 2 s).
+    let us = 1000;
+    let touch = Rig::new(us, &centre()).penetration(DOWN, 2.0);
+    let mut rig = Rig::new(us, &centre());
+    let mut lowest_limit = f64::INFINITY;
+    let mut fastest: f64 = 0.0;
+    for _ in 0..rig.cycles(0.3) {
+        rig.step(DOWN.map(|x| x * 23.5), DOWN);
+        lowest_limit = lowest_limit.min(rig.c.servo.controller().force_limit().to_f64());
+        fastest = fastest.max(rig.c.servo.vp().handle_twist.linear.norm().to_f64());
+    }
+    assert!(fastest > 1.1, "the push reached the brake: {fastest} m/s");
+    assert!(
+        lowest_limit > 8.0,
+        "force limit during the push: {lowest_limit} N"
+    );
+    let mut back = None;
+    for n in 0..rig.cycles(2.0) {
+        let pen = rig.step(DOWN.map(|x| x * 2.0), DOWN).0;
+        if back.is_none() && (pen - touch).abs() < 1e-3 {
+            back = Some(n);
+        }
+    }
+    let ms = back.expect("the wall came back within 2 s") as f64 * rig.period_s * 1000.0;
+    println!(
+        "fastest {fastest:.2} m/s, lowest force limit {lowest_limit:.2} N, back after {ms:.0} ms"
+    );
+    assert!(ms <= 1200.0, "{ms} ms");
+}
+
+#[test]
+fn power_on_next_to_the_object_steps_the_force_by_at_most_2_n_per_1_ms_cycle() {
+    // Power off for 0.1 s (the arm falls), then on with the object 3 cm
+    // away: the envelope ramps in, the allocation saturates as the arm is
+    // caught, an anchor slip is taken back. No cycle changes the motors'
+    // force by more than 2 N (the take-back gives one ramp step per cycle).
+    let us = 1000;
+    let mut rig = Rig::new(us, &arm::WORK_Q);
+    rig.vpr.pose.position = rig.wall.position.add(Vec3::from_f64([0.0, 0.0, 0.03]));
+    rig.run_for(0.2, [0.0; 3]);
+    let mut prev = rig.c.servo.control_output().handle_wrench.force.to_f64();
+    let mut worst: f64 = 0.0;
+    let on_at = rig.cycles(0.1);
+    for k in 0..rig.cycles(0.4) {
+        let power = if k == 0 {
+            PowerRequest::Off
+        } else if k == on_at {
+            PowerRequest::On
+        } else {
+            PowerRequest::None
+        };
+        rig.vpr.seq = rig.vpr.seq.wrapping_add(1);
+        rig.vpr.received_cycle = rig.c.servo.cycle();
+        rig.c.run(
+            &rig.line,
+            &hand([0.0; 3], power),
+            &rig.cfg,
+            Some(&rig.vpr),
+            ServoMode::Main,
+        );
+        let f = rig.c.servo.control_output().handle_wrench.force.to_f64();
+        // The switch-off itself is a cut (0 at once, by design).
+        if k > 0 {
+            worst = worst.max(
+                ((f[0] - prev[0]).powi(2) + (f[1] - prev[1]).powi(2) + (f[2] - prev[2]).powi(2))
+                    .sqrt(),
+            );
+        }
+        prev = f;
+    }
+    println!("largest step after power-on: {worst:.3} N");
+    assert!(worst > 0.1, "the coupling engaged: {worst}");
+    assert!(worst <= 2.0, "{worst} N");
 }
