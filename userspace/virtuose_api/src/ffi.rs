@@ -304,6 +304,9 @@ pub struct VirtContextS {
     overruns: AtomicU32,
     /// VIRT_E_* code of the last call on this context (0: it succeeded).
     last_error: AtomicI32,
+    /// Set by the first `virtClose`: a second one (the periodic callback,
+    /// still running while the first waits for it) is refused.
+    closing: AtomicBool,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -541,11 +544,17 @@ impl VirtContextS {
             .unwrap_or(false)
     }
 
+    /// Stop and join the callback loop and the recorder. Each worker is
+    /// taken out of its slot and the slot's lock released before the join:
+    /// a callback still running may call the API (which takes that lock)
+    /// before it returns.
     fn stop_workers(&self) {
-        if let Some(w) = lock(&self.periodic_loop).take() {
+        let periodic = lock(&self.periodic_loop).take();
+        if let Some(w) = periodic {
             w.stop();
         }
-        if let Some(w) = lock(&self.recorder).take() {
+        let recorder = lock(&self.recorder).take();
+        if let Some(w) = recorder {
             w.stop();
         }
     }
@@ -686,6 +695,7 @@ pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut c_void {
                 overrun_latched: AtomicBool::new(false),
                 overruns: AtomicU32::new(0),
                 last_error: AtomicI32::new(0),
+                closing: AtomicBool::new(false),
             });
             Box::into_raw(b) as *mut c_void
         }
@@ -708,28 +718,33 @@ pub unsafe extern "C" fn virtClose(vc: *mut c_void) -> c_int {
     if vc.is_null() {
         return status_of(Err(ApiError::new(VIRT_E_INVALID_CONTEXT, "null context")));
     }
-    // From the context's own callback, freeing it would pull the loop's
-    // context from under it: refused.
     // SAFETY: live pointer from Box::into_raw, per the contract.
-    let in_callback = unsafe { &*(vc as *const VirtContextS) }
-        .periodic_loop
-        .lock()
-        .map(|w| w.as_ref().map(|w| w.id) == Some(std::thread::current().id()))
+    let c = unsafe { &*(vc as *const VirtContextS) };
+    // From the context's own callback, freeing it would pull the loop's
+    // context from under it: refused. So is a second virtClose while the
+    // first waits for a running callback to return (the callback calling
+    // virtClose then): the first one frees the context.
+    let in_callback = lock(&c.periodic_loop)
+        .as_ref()
+        .map(|w| w.id == std::thread::current().id())
         .unwrap_or(false);
-    if in_callback {
+    if in_callback || c.closing.swap(true, Ordering::SeqCst) {
         // SAFETY: as above.
         return unsafe {
             run(vc, |_| {
                 Err(ApiError::new(
                     VIRT_E_CALL_TIME,
-                    "virtClose from the periodic callback: call virtStopLoop there, virtClose after",
+                    "virtClose from the periodic callback or during virtClose: call virtStopLoop there, virtClose after",
                 ))
             })
         };
     }
-    // SAFETY: live pointer from Box::into_raw, per the contract.
+    // Joined before the context is owned again: the callback may still use
+    // it until it returns.
+    c.stop_workers();
+    // SAFETY: live pointer from Box::into_raw, per the contract; no worker
+    // thread is left that could use it.
     let b = unsafe { Box::from_raw(vc as *mut VirtContextS) };
-    b.stop_workers();
     let r = b.session_mut().close();
     status_of(r.map_err(ApiError::from))
 }

@@ -5,7 +5,7 @@
 //! recording and the functions that are not implemented.
 
 use std::ffi::{c_int, c_uint, c_void, CString};
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::time::Duration;
 
 use hap_core::control::Gains;
@@ -267,6 +267,8 @@ struct Counter {
     errors: AtomicU32,
     sleep_us: u64,
     stop_after: u32,
+    /// Set by the call that stopped the loop, once it has.
+    stopped: AtomicBool,
 }
 
 unsafe extern "C" fn callback(vc: *mut c_void, arg: *mut c_void) {
@@ -297,6 +299,7 @@ unsafe extern "C" fn callback(vc: *mut c_void, arg: *mut c_void) {
             assert_eq!(virtGetErrorCode(vc), 19); // VIRT_E_CALL_TIME
             assert_eq!(virtStopLoop(vc), 0);
         }
+        c.stopped.store(true, Ordering::SeqCst);
     }
 }
 
@@ -311,6 +314,7 @@ fn periodic_loop_calls_back_streams_and_stops() {
         errors: AtomicU32::new(0),
         sleep_us: 0,
         stop_after: 0,
+        stopped: AtomicBool::new(false),
     };
     let period = 0.002f32;
     // SAFETY: vc is live; counter outlives the loop (stopped below).
@@ -356,6 +360,7 @@ fn loop_for(p: &FakePeer, vc: *mut c_void, period: f32, ms: u64) -> (u32, u64) {
         errors: AtomicU32::new(0),
         sleep_us: 0,
         stop_after: 0,
+        stopped: AtomicBool::new(false),
     };
     let arg = &counter as *const Counter as *mut c_void;
     // SAFETY: vc is live; counter outlives the loop (stopped below).
@@ -414,6 +419,7 @@ fn the_periodic_loop_follows_the_controllers_answers() {
         errors: AtomicU32::new(0),
         sleep_us: 0,
         stop_after: 0,
+        stopped: AtomicBool::new(false),
     };
     let period = 0.004f32;
     let arg = &counter as *const Counter as *mut c_void;
@@ -443,6 +449,7 @@ fn the_loop_runs_while_another_thread_waits_for_a_button() {
         errors: AtomicU32::new(0),
         sleep_us: 0,
         stop_after: 0,
+        stopped: AtomicBool::new(false),
     };
     let period = 0.001f32;
     let addr = vc as usize;
@@ -543,6 +550,7 @@ fn a_request_round_trip_does_not_stall_the_loop() {
         errors: AtomicU32::new(0),
         sleep_us: 0,
         stop_after: 0,
+        stopped: AtomicBool::new(false),
     };
     let period = 0.001f32;
     let addr = vc as usize;
@@ -593,6 +601,7 @@ fn a_callback_that_overruns_raises_the_alarm() {
         errors: AtomicU32::new(0),
         sleep_us: 20_000,
         stop_after: 10,
+        stopped: AtomicBool::new(false),
     };
     let period = 0.001f32;
     // SAFETY: vc is live; counter outlives the loop.
@@ -604,14 +613,20 @@ fn a_callback_that_overruns_raises_the_alarm() {
         assert_eq!(virtGetAlarm(vc, &mut a), 0);
         assert_eq!(a & VIRT_ALARM_CALLBACK_OVERRUN, 0);
         assert_eq!(virtStartLoop(vc), 0);
-        for _ in 0..200 {
-            if counter.calls.load(Ordering::SeqCst) >= 10 {
+        // Until the 10th call has stopped the loop (it sleeps 20 ms first).
+        for _ in 0..500 {
+            if counter.stopped.load(Ordering::SeqCst) {
                 break;
             }
             std::thread::sleep(Duration::from_millis(10));
         }
+        assert!(counter.stopped.load(Ordering::SeqCst), "stopped itself");
         std::thread::sleep(Duration::from_millis(20));
-        assert_eq!(counter.calls.load(Ordering::SeqCst), 10, "stopped itself");
+        assert_eq!(
+            counter.calls.load(Ordering::SeqCst),
+            10,
+            "no call after the stop"
+        );
         let mut n: c_uint = 0;
         assert_eq!(virtGetCallbackOverruns(vc, &mut n), 0);
         assert!(n >= 9, "{n} overruns");
@@ -634,6 +649,7 @@ fn close_stops_a_running_loop() {
         errors: AtomicU32::new(0),
         sleep_us: 0,
         stop_after: 0,
+        stopped: AtomicBool::new(false),
     });
     let period = 0.001f32;
     // SAFETY: vc is live; counter outlives the loop (virtClose joins it).
@@ -649,6 +665,92 @@ fn close_stops_a_running_loop() {
     assert!(calls > 0);
     std::thread::sleep(Duration::from_millis(30));
     assert_eq!(counter.calls.load(Ordering::SeqCst), calls);
+    assert_eq!(p.stats().frames.get("close_session"), Some(&1));
+}
+
+/// What the callback of `close_from_another_thread_waits_for_the_running_callback` saw.
+struct Racer {
+    calls: AtomicU32,
+    entered: AtomicBool,
+    close_result: std::sync::atomic::AtomicI32,
+    close_code: std::sync::atomic::AtomicI32,
+    read_result: std::sync::atomic::AtomicI32,
+}
+
+unsafe extern "C" fn close_racer(vc: *mut c_void, arg: *mut c_void) {
+    // SAFETY: arg is the &Racer the test passed, alive until virtClose
+    // returned (it joins this loop).
+    let r = unsafe { &*(arg as *const Racer) };
+    if r.calls.fetch_add(1, Ordering::SeqCst) > 0 {
+        return;
+    }
+    r.entered.store(true, Ordering::SeqCst);
+    // The other thread's virtClose starts meanwhile and waits for this call.
+    std::thread::sleep(Duration::from_millis(100));
+    let mut pos = [0f32; 7];
+    // SAFETY: vc is live until this call returns (virtClose joins first).
+    unsafe {
+        r.close_result.store(virtClose(vc), Ordering::SeqCst);
+        r.close_code.store(virtGetErrorCode(vc), Ordering::SeqCst);
+        r.read_result.store(
+            virtGetPhysicalPosition(vc, pos.as_mut_ptr()),
+            Ordering::SeqCst,
+        );
+    }
+}
+
+#[test]
+fn close_from_another_thread_waits_for_the_running_callback() {
+    // A callback still running when another thread closes the context may
+    // use it until it returns (virtClose joins it first, without holding a
+    // lock the API takes), and its own virtClose is refused rather than
+    // freeing the context twice.
+    let p = peer([0.45, 0.05, 0.25], [0.0; 3]);
+    let vc = open(&p);
+    let racer = Box::new(Racer {
+        calls: AtomicU32::new(0),
+        entered: AtomicBool::new(false),
+        close_result: std::sync::atomic::AtomicI32::new(1),
+        close_code: std::sync::atomic::AtomicI32::new(0),
+        read_result: std::sync::atomic::AtomicI32::new(1),
+    });
+    let period = 0.001f32;
+    // SAFETY: vc is live; racer outlives the loop (virtClose joins it).
+    unsafe {
+        assert_eq!(virtSetCommandType(vc, COMMAND_TYPE_IMPEDANCE), 0);
+        let arg = &*racer as *const Racer as *mut c_void;
+        assert_eq!(
+            virtSetPeriodicFunction(vc, Some(close_racer), &period, arg),
+            0
+        );
+        assert_eq!(virtStartLoop(vc), 0);
+    }
+    for _ in 0..500 {
+        if racer.entered.load(Ordering::SeqCst) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    assert!(racer.entered.load(Ordering::SeqCst), "the callback ran");
+    let (tx, rx) = std::sync::mpsc::channel();
+    let addr = vc as usize;
+    std::thread::spawn(move || {
+        // SAFETY: vc is live; this is the one virtClose of the test thread.
+        let r = unsafe { virtClose(addr as *mut c_void) };
+        let _ = tx.send(r);
+    });
+    let closed = rx
+        .recv_timeout(Duration::from_secs(10))
+        .expect("virtClose returned (no deadlock with the running callback)");
+    assert_eq!(closed, 0);
+    assert_eq!(racer.close_result.load(Ordering::SeqCst), -1);
+    assert_eq!(racer.close_code.load(Ordering::SeqCst), 19); // VIRT_E_CALL_TIME
+    assert_eq!(racer.read_result.load(Ordering::SeqCst), 0);
+    assert_eq!(
+        racer.calls.load(Ordering::SeqCst),
+        1,
+        "no call after the close"
+    );
     assert_eq!(p.stats().frames.get("close_session"), Some(&1));
 }
 
