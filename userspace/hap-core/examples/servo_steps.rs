@@ -19,9 +19,10 @@ use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench};
 use hap_core::io::MotorLine;
+use hap_core::mode::Mode;
 use hap_core::position_log::LogRecord;
 use hap_core::protocol::MAX_FRAME_LEN;
-use hap_core::servo::{PowerRequest, ServoInputs, ServoMode};
+use hap_core::servo::{PowerRequest, ServoInputs};
 use std::hint::black_box;
 
 /// The scripted world: effort, VPr and the output buffers of one cycle.
@@ -100,7 +101,7 @@ impl Script {
             black_box(&inputs),
             &self.cfg,
             Some(&self.vpr),
-            ServoMode::Main,
+            Mode::Main,
         );
         let seq = &mut self.seq;
         let n = ServoCycle::encode_answers(
