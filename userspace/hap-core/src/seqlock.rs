@@ -318,7 +318,7 @@ mod tests {
     #[test]
     fn a_role_moves_between_threads() {
         fn moved_between_threads<T: Send>() {}
-        moved_between_threads::<crate::seqlock::Writer<'static, Vec<AtomicU64>>>();
+        moved_between_threads::<Writer<'static, Vec<AtomicU64>>>();
     }
 
     #[test]

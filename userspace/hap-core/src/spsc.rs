@@ -543,8 +543,8 @@ mod tests {
     #[test]
     fn a_role_moves_between_threads() {
         fn moved_between_threads<T: Send>() {}
-        moved_between_threads::<crate::spsc::Producer<'static, Vec<AtomicU64>>>();
-        moved_between_threads::<crate::spsc::Consumer<'static, Vec<AtomicU64>>>();
+        moved_between_threads::<Producer<'static, Vec<AtomicU64>>>();
+        moved_between_threads::<Consumer<'static, Vec<AtomicU64>>>();
     }
 
     #[test]
