@@ -25,7 +25,8 @@ use crate::{
     hap_core::{
         clock::{FailSafeAction, FailSafeCause, Supervisor, Verdict, FAIL_SAFE_SEQUENCE},
         io::Gate,
-        position_log::{LogMode, LogRecord, LogTiming},
+        mode::Mode,
+        position_log::{LogRecord, LogTiming},
         servo::log_flags,
         stats::WordSet,
         vp::alarm,
@@ -290,7 +291,7 @@ fn log_fail_safe_step(sh: &Controller, arm: &Arm, step: u8) {
             ..LogRecord::ZERO
         },
     };
-    rec.mode = LogMode::FailSafe;
+    rec.mode = Mode::FailSafe;
     rec.fail_safe_step = step;
     // What the motors apply now, read from the line (not SERVO's last record).
     let line = &arm.io.motor_line;

@@ -14,6 +14,10 @@
 //! - `publication` (hap-core's `ProtoPublication` under a seqcount): PROTO_IN
 //!   writes it after each frame, also under `mtx_proto`; /dev/hap_stats
 //!   reads it.
+//!
+//! Each publication's writer claims hap-core's `seqlock::Writer` role for
+//! its write; all its writers hold the `mtx_proto` guard meanwhile, so the
+//! role is always free when claimed.
 
 use crate::{
     hap_core::{
@@ -75,7 +79,11 @@ impl ProtoState {
             counters: *proto.counters(),
             session: proto.session(),
         };
-        let w = self.publication.write();
+        // Free: every claim of it is made under `mtx_proto` (module doc).
+        let Some(mut writer) = self.publication.claim_writer() else {
+            return;
+        };
+        let w = writer.write();
         p.visit_words(|i, v| w.set(i, *v));
     }
 
@@ -127,6 +135,11 @@ fn write_latch(latch: &SeqWords<Words<VPR_LATCH_WORDS>>, proto: &ProtoIn) {
         session: proto.session(),
         vpr: *proto.vpr(),
     };
-    let w = latch.write();
+    // Free: every claim of it is made under `mtx_proto`, or in `new`
+    // before the latch is shared (module doc).
+    let Some(mut writer) = latch.claim_writer() else {
+        return;
+    };
+    let w = writer.write();
     rec.visit_words(|i, v| w.set(i, *v));
 }

@@ -18,11 +18,15 @@
 //!   of a device, serialised among themselves by `consumers`, a lock the
 //!   producer never takes.
 //!
-//! A token is claimed once ([`Fifo::claim_producer`],
+//! The roles are hap-core's: the ring's `spsc::Producer` and
+//! `spsc::Consumer` tokens, claimed from the ring and given back when
+//! dropped. A task that plays a side for the whole run holds the token in
+//! this file's [`Producer`] / [`Consumer`] ([`Fifo::claim_producer`],
 //! [`Fifo::claim_consumer`]; a second claim while one is held gets `None`),
-//! is not `Send` (it stays in the task that claimed it) and gives the
-//! side back when dropped. Each ring is used with one kind of producer
-//! side and one kind of consumer side.
+//! which is not `Send` either (it stays in the task that claimed it); the
+//! serialised writers and readers and the two real-time log producers
+//! claim the role for one push or pop. Each ring is used with one kind of
+//! producer side and one kind of consumer side.
 //!
 //! A push never waits: it succeeds or is refused (full ring, counted).
 //! It then rings the `readable` doorbell only if a reader sleeps: a
@@ -138,26 +142,28 @@ pub(crate) struct Fifo<const REC: usize> {
     closed: AtomicBool,
     /// Closed and what is queued is dropped: readers see end of file at once.
     discarded: AtomicBool,
-    /// Held for the length of one push by [`Fifo::try_push_exclusive`]: the
-    /// position log has two real-time producers (SERVO's cycle record,
-    /// CLOCK's fail-safe step record) that must never wait for each other.
-    pushing: AtomicBool,
-    /// Records refused because the other producer was pushing.
+    /// Records refused because another producer held the ring's producer
+    /// role ([`Fifo::try_push_exclusive`]: the position log's two real-time
+    /// producers, SERVO's cycle record and CLOCK's fail-safe step record,
+    /// never wait for each other).
     busy_refused: AtomicU64,
-    /// A [`Producer`] / [`Consumer`] token is held.
-    producer_claimed: AtomicBool,
-    consumer_claimed: AtomicBool,
 }
 
-/// The single producer's side of a [`Fifo`], held by its task.
+/// The ring's words.
+type RingWords = KVVec<AtomicU64>;
+
+/// The single producer's side of a [`Fifo`], held by its task: the ring's
+/// producer role for as long as the task runs.
 pub(crate) struct Producer<'a, const REC: usize> {
     fifo: &'a Fifo<REC>,
+    role: spsc::Producer<'a, RingWords>,
     _not_send: NotThreadSafe,
 }
 
 /// The single consumer's side of a [`Fifo`], held by its task.
 pub(crate) struct Consumer<'a, const REC: usize> {
     fifo: &'a Fifo<REC>,
+    role: spsc::Consumer<'a, RingWords>,
     _not_send: NotThreadSafe,
 }
 
@@ -167,26 +173,14 @@ assert_not_send!(Consumer<'static, 1>);
 impl<const REC: usize> Producer<'_, REC> {
     /// Push one record: never waits; refused when full or closed.
     pub(crate) fn push(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
-        self.fifo.push_one(rec)
-    }
-}
-
-impl<const REC: usize> Drop for Producer<'_, REC> {
-    fn drop(&mut self) {
-        self.fifo.producer_claimed.store(false, Ordering::Release);
+        self.fifo.push_with(&self.role, rec)
     }
 }
 
 impl<const REC: usize> Consumer<'_, REC> {
     /// Pop the oldest record: never waits.
     pub(crate) fn pop(&self, out: &mut [u8; REC]) -> Option<usize> {
-        self.fifo.pop_one(out)
-    }
-}
-
-impl<const REC: usize> Drop for Consumer<'_, REC> {
-    fn drop(&mut self) {
-        self.fifo.consumer_claimed.store(false, Ordering::Release);
+        self.fifo.pop_with(&self.role, out)
     }
 }
 
@@ -208,41 +202,38 @@ impl<const REC: usize> Fifo<REC> {
             sleepers: AtomicU32::new(0),
             closed: AtomicBool::new(false),
             discarded: AtomicBool::new(false),
-            pushing: AtomicBool::new(false),
             busy_refused: AtomicU64::new(0),
-            producer_claimed: AtomicBool::new(false),
-            consumer_claimed: AtomicBool::new(false),
         }))
     }
 
     /// The single producer's side, if nobody holds it.
     pub(crate) fn claim_producer(&self) -> Option<Producer<'_, REC>> {
-        self.producer_claimed
-            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
-            .ok()?;
         Some(Producer {
             fifo: self,
+            role: self.ring.claim_producer()?,
             _not_send: NotThreadSafe,
         })
     }
 
     /// The single consumer's side, if nobody holds it.
     pub(crate) fn claim_consumer(&self) -> Option<Consumer<'_, REC>> {
-        self.consumer_claimed
-            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
-            .ok()?;
         Some(Consumer {
             fifo: self,
+            role: self.ring.claim_consumer()?,
             _not_send: NotThreadSafe,
         })
     }
 
-    /// One push, by whichever producer side holds the right to it.
-    fn push_one(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
+    /// One push, by whichever producer side holds the ring's role.
+    fn push_with(
+        &self,
+        role: &spsc::Producer<'_, RingWords>,
+        rec: &[u8],
+    ) -> core::result::Result<(), Refused> {
         if self.closed.load(Ordering::Acquire) {
             return Err(Refused::Closed);
         }
-        match self.ring.push(rec) {
+        match role.push(rec) {
             Ok(()) => {}
             Err(PushError::Full) | Err(PushError::TooLong) => return Err(Refused::Full),
         }
@@ -252,21 +243,14 @@ impl<const REC: usize> Fifo<REC> {
 
     /// A push by one of two producers that never wait for each other
     /// (CLOCK preempts SERVO on one CPU, so a wait could never end): the
-    /// one that finds the other mid-push is refused, and the record is
-    /// counted with the ring's refusals. One producer at a time keeps the
-    /// ring's single-producer protocol.
+    /// one that finds the ring's producer role held by the other is
+    /// refused, and the record is counted with the ring's refusals.
     pub(crate) fn try_push_exclusive(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
-        if self
-            .pushing
-            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
-            .is_err()
-        {
+        let Some(role) = self.ring.claim_producer() else {
             self.busy_refused.fetch_add(1, Ordering::Relaxed);
             return Err(Refused::Full);
-        }
-        let r = self.push_one(rec);
-        self.pushing.store(false, Ordering::Release);
-        r
+        };
+        self.push_with(&role, rec)
     }
 
     /// Ring the doorbell if a reader sleeps on it (after a push here, or in
@@ -282,23 +266,32 @@ impl<const REC: usize> Fifo<REC> {
 
     /// A push from one of several writers (device `write()`s): they queue
     /// among themselves on `producers`, which the consumer never takes.
+    /// The writer in turn claims the ring's producer role for its push
+    /// (only these writers claim it, under `producers`: it is free).
     pub(crate) fn push_serialised(&self, rec: &[u8]) -> core::result::Result<(), Refused> {
         let _g = self.producers.lock();
-        self.push_one(rec)
+        self.try_push_exclusive(rec)
     }
 
-    /// One pop, by whichever consumer side holds the right to it.
-    fn pop_one(&self, out: &mut [u8; REC]) -> Option<usize> {
+    /// One pop, by whichever consumer side holds the ring's role.
+    fn pop_with(&self, role: &spsc::Consumer<'_, RingWords>, out: &mut [u8; REC]) -> Option<usize> {
         if self.discarded.load(Ordering::Acquire) {
             return None;
         }
-        self.ring.pop(out)
+        role.pop(out)
+    }
+
+    /// One pop by a reader in turn (under `consumers`, which only the
+    /// readers take: they claim the ring's consumer role for one pop).
+    fn pop_in_turn(&self, out: &mut [u8; REC]) -> Option<usize> {
+        let role = self.ring.claim_consumer()?;
+        self.pop_with(&role, out)
     }
 
     /// A pop from one of several readers, without waiting.
     pub(crate) fn pop_serialised(&self, out: &mut [u8; REC]) -> Option<usize> {
         let _g = self.consumers.lock();
-        self.pop_one(out)
+        self.pop_in_turn(out)
     }
 
     /// A reader's pop: the oldest record, waiting for one unless `nonblock`.
@@ -319,8 +312,8 @@ impl<const REC: usize> Fifo<REC> {
         let take = |out: &mut [u8; REC]| {
             let _g = self.consumers.lock();
             first
-                .and_then(|f| f.pop_one(out))
-                .or_else(|| self.pop_one(out))
+                .and_then(|f| f.pop_in_turn(out))
+                .or_else(|| self.pop_in_turn(out))
         };
         loop {
             if let Some(n) = take(out) {

@@ -29,7 +29,7 @@ use crate::{
     controller::Controller,
     effort::EffortTaker,
     hap_core::{
-        mode::ServoMode,
+        mode::Mode,
         position_log::{LogRecord, LogTiming},
         protocol::MAX_FRAME_LEN,
     },
@@ -84,11 +84,12 @@ pub(crate) fn servo_main(kt: &CurrentKThread, sh: &Controller) {
         }
         // The spec's servo_working = TRUE.
         let start = hs.servo_begin();
-        let Some(mode) = ServoMode::of(start.mode) else {
+        if start.mode == Mode::FailSafe {
             // Fail-safe: SERVO runs nothing and leaves.
             hs.servo_leave();
             break;
-        };
+        }
+        let mode = start.mode;
         let start_ns = sh.time.now_ns();
         let expiry_ns = clock.expiry_ns();
         clock.stamp_servo_start(start_ns);
@@ -141,7 +142,7 @@ pub(crate) fn calibrate(sh: &Controller) -> Result {
         // SERVO's side of rtf_out, given back before SERVO starts.
         let answers = arm.rtf.rtf_out.claim_producer().ok_or(EBUSY)?;
         let mut data = arm.servo.data.lock();
-        servo_cycle::run(sh, arm, &answers, &mut data, ServoMode::Main);
+        servo_cycle::run(sh, arm, &answers, &mut data, Mode::Main);
         let rec = *data.cycle.servo.log_record();
         drop(data);
         arm.log.push(&rec);

@@ -22,8 +22,9 @@ use crate::{
     controller::Controller,
     hap_core::{
         cycle::ServoCycle,
+        mode::Mode,
         protocol::MAX_FRAME_LEN,
-        servo::{PowerRequest, ServoInputs, ServoMode},
+        servo::{PowerRequest, ServoInputs},
     },
     ring::Producer,
     servo_data::ServoData,
@@ -37,7 +38,7 @@ pub(crate) fn run(
     arm: &Arm,
     answers: &Producer<'_, MAX_FRAME_LEN>,
     data: &mut ServoData,
-    mode: ServoMode,
+    mode: Mode,
 ) {
     // Configuration: a fresh copy unless PROTO_IN is writing it.
     match arm.servo.config.try_read() {

@@ -92,7 +92,7 @@ fn render(sh: &Controller, arm: &Arm, st: &mut HapStats, out: &mut [u8]) -> usiz
     };
     let mut w = SliceWriter::new(rest);
     let state = sh.life.state();
-    let mode = sh.clock.handshake.mode().name();
+    let mode = sh.clock.handshake.mode().stats_word();
     let status = arm.io.arm_status();
     let _ = (|| -> core::fmt::Result {
         writeln!(w, "state: {}", state.name())?;

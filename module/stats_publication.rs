@@ -13,7 +13,7 @@
 
 use crate::{
     hap_core::{
-        seqlock::SeqWords,
+        seqlock::{self, SeqWords},
         stats::{HapStats, WordSet, STATS_WORDS},
     },
     ring::{storage, AtomicU64},
@@ -54,16 +54,17 @@ pub(crate) struct StatsPublication {
     read_busy: Atomic<u64>,
 }
 
-/// CLOCK's statistics, held by CLOCK: the only writer of the publication.
+/// CLOCK's statistics, held by CLOCK with the publication's writer role:
+/// the only writer of the publication.
 pub(crate) struct StatsWriter<'a> {
-    publication: &'a StatsPublication,
+    writer: seqlock::Writer<'a, KVVec<AtomicU64>>,
     pub(crate) stats: KBox<HapStats>,
 }
 
 impl StatsWriter<'_> {
     /// Publish the statistics (`set`: what changed since the last time).
     pub(crate) fn publish(&mut self, set: WordSet) {
-        let w = self.publication.words.write();
+        let w = self.writer.write();
         self.stats.visit_words(set, |i, v| w.set(i, *v));
     }
 }
@@ -72,8 +73,9 @@ impl StatsPublication {
     pub(crate) fn new(period_us: u32) -> Result<impl PinInit<Self, Error>> {
         let mut own = new_stats(period_us)?;
         let words = SeqWords::new(storage(STATS_WORDS)?);
-        {
-            let w = words.write();
+        // The first publication, before anybody can claim the role.
+        if let Some(mut writer) = words.claim_writer() {
+            let w = writer.write();
             own.visit_words(WordSet::All, |i, v| w.set(i, *v));
         }
         Ok(try_pin_init!(Self {
@@ -86,11 +88,9 @@ impl StatsPublication {
     /// CLOCK, once: its statistics and the right to publish them. `None`
     /// if they were already taken.
     pub(crate) fn take_for_clock(&self) -> Option<StatsWriter<'_>> {
+        let writer = self.words.claim_writer()?;
         let stats = self.clock_stats.lock().take()?;
-        Some(StatsWriter {
-            publication: self,
-            stats,
-        })
+        Some(StatsWriter { writer, stats })
     }
 
     /// Copy the published statistics into `st` (built by `new_stats`),

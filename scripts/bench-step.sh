@@ -10,7 +10,11 @@
 #     calls into each function). At a servo period of 1 ms (the module's
 #     default) and of 100 us (its floor): the simulated arm integrates in
 #     sub-steps of at most 500 us, 2 at 1 ms, 1 at 100 us. Mode: host
-#     native, valgrind instruction count (deterministic).
+#     native, valgrind instruction count (deterministic). Then, at 1 ms,
+#     per arm with two arms (arms=2: SERVO steps both in one cycle): arm 0's
+#     cycle, and what arm 1 adds, = (Ir(K=2000) - Ir(K=1000)) / 1000 with
+#     two arms less the one-arm figure; each is checked against the
+#     project's budget of 15 000 instructions per arm and cycle.
 # (b) `cargo bench -p hap-core --bench servo_step`: ns per servo step, host
 #     native wall clock (depends on the host and its load).
 # (c) unless --no-rt: the same cycle in a SCHED_FIFO 80 loop (absolute
@@ -116,6 +120,21 @@ if command -v valgrind >/dev/null; then
     printf '  %-50s %6d\n' "$(echo "$f" | sed 's/^hap_core:://; s/\$$//')" "$(per_cycle "$f")"
   done
   echo "(callgrind_annotate $out/step-$stamp/callgrind.servo_steps.$cg_period.2000 | head -40 for the self cost)"
+  [ "$cg_period" = 1000 ] && one_arm=$full
+  done
+  echo "### two arms (arms=2) at 1000 us"
+  declare -A ir2
+  for k in 1000 2000; do
+    valgrind --tool=callgrind --callgrind-out-file="$out/step-$stamp/callgrind.servo_steps.arms2.$k" "$bin" "$k" 1000 2 \
+      > /dev/null 2> "$out/step-$stamp/callgrind.arms2.$k.err"
+    ir2[$k]=$(sed -n 's/.*Collected : \([0-9]*\).*/\1/p' "$out/step-$stamp/callgrind.arms2.$k.err")
+  done
+  both=$(( (ir2[2000] - ir2[1000]) / 1000 ))
+  echo "instructions per servo cycle at 1000 us, both arms [host native, callgrind]: $both"
+  for a in 0 1; do
+    if [ "$a" = 0 ]; then n=$one_arm; else n=$(( both - one_arm )); fi
+    verdict=$([ "$n" -le 15000 ] && echo "within" || echo "OVER")
+    echo "instructions per cycle per arm at 1000 us, arm $a [host native, callgrind]: $n ($verdict the 15 000 budget)"
   done
 else
   echo "valgrind not installed (apt-get install -y valgrind): skipped"

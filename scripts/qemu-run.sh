@@ -14,7 +14,8 @@
 #                       (busy time counted in instructions, idle time follows the host clock)
 #   --smp N             vCPUs (default 2; forced to 1 with --icount)
 #   --timeout S         kill the guest after S seconds (default 120): a hang fails
-#   --udp HOST:GUEST    forward UDP 127.0.0.1:HOST to the guest's port GUEST
+#   --udp HOST:GUEST    forward UDP 127.0.0.1:HOST to the guest's port GUEST (repeatable:
+#                       one forward per arm's bridge)
 #   --ko FILE           boot this hapticctrl.ko instead of build/<variant>/module/
 #   --log FILE          keep the guest log there (default build/logs/<test>.log)
 #   --extra SRC:DST     add a file to the initramfs (repeatable)
@@ -29,7 +30,7 @@ HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 . "$HERE/lib.sh"
 
 ko=""; variant=""; period_us=""; icount=0; smp=2; timeout_s=120; udp=""; log=""; accel=${HAP_ACCEL:-}; background=0
-extras=(); insecure_marker=""
+extras=(); insecure_marker=""; udp_fwds=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --debug) variant=debug ;;
@@ -39,7 +40,7 @@ while [ $# -gt 0 ]; do
     --icount-sleep) icount=2 ;;
     --smp) smp=$2; shift ;;
     --timeout) timeout_s=$2; shift ;;
-    --udp) udp=$2; shift ;;
+    --udp) udp_fwds+=("$2"); udp=$2; shift ;;
     --log) log=$2; shift ;;
     --ko) ko=$2; shift ;;
     --extra) extras+=("$2"); shift ;;
@@ -132,13 +133,15 @@ else
   qemu+=(-accel tcg,thread=multi -smp "$smp")
 fi
 if [ -n "$udp" ]; then
-  qemu+=(-nic "user,model=virtio-net-pci,hostfwd=udp:127.0.0.1:${udp%%:*}-:${udp#*:}")
+  nic="user,model=virtio-net-pci"
+  for f in "${udp_fwds[@]}"; do nic="$nic,hostfwd=udp:127.0.0.1:${f%%:*}-:${f#*:}"; done
+  qemu+=(-nic "$nic")
 fi
 append="console=ttyS0 panic=-1 rdinit=/init loglevel=6 tsc=reliable${stock_append:+ $stock_append} hap.mode=$mode${HAP_APPEND:+ $HAP_APPEND}"
 [ -n "$args" ] && append="$append hap.args=$args"
 [ -n "$period_us" ] && append="$append hap.period_us=$period_us"
 qemu+=(-append "$append" ${HAP_QEMU_EXTRA:-})
-log "booting $name (${variant:-base} kernel, accel=$mode${udp:+, udp $udp}); log: $log"
+log "booting $name (${variant:-base} kernel, accel=$mode${udp:+, udp ${udp_fwds[*]}}); log: $log"
 
 if [ "$background" = 1 ]; then
   trap - EXIT

@@ -143,6 +143,11 @@ if [ "$qemu" = 1 ]; then
       bash tests/e2e/link.sh $kflag | tee "$out"
       line=$(grep -E '^e2e: [0-9]+ passed' "$out" | tail -1)
       add "host<->guest e2e link ($kernel kernel)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
+      # Two arms, two clients at once (one UDP port per arm).
+      t_arms=$(date +%s)
+      bash tests/e2e/two-arms.sh $kflag | tee "$out"
+      line=$(grep -E '^e2e-arms: [0-9]+ passed' "$out" | tail -1)
+      add "host<->guest e2e, two arms and two clients ($kernel kernel, $(( $(date +%s) - t_arms )) s)" "$(echo "$line" | awk '{print $2}')" "$(echo "$line" | awk '{print $4}')"
       # The forged-traffic campaign sends spoofed datagrams from a raw
       # socket: root only.
       if [ "$(id -u)" = 0 ]; then

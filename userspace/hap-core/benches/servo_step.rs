@@ -5,8 +5,9 @@ use hap_core::arm;
 use hap_core::config::{CommandType, ServoConfig};
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench, JOINTS_ZERO};
+use hap_core::mode::Mode;
 use hap_core::position_log::LogRecord;
-use hap_core::servo::{PowerRequest, ServoInputs, ServoMode, StandaloneServo};
+use hap_core::servo::{PowerRequest, ServoInputs, StandaloneServo};
 use hap_core::vp::VpReceived;
 use std::hint::black_box;
 use std::time::Instant;
@@ -39,10 +40,10 @@ fn main() {
         valid: true,
         ..Default::default()
     };
-    s.step(&on, &cfg, &vpr, ServoMode::Main);
+    s.step(&on, &cfg, &vpr, Mode::Main);
     let base = s.vp().handle_pose.position;
     let mut buf = [0u8; LogRecord::SIZE];
-    for (label, mode) in [("main", ServoMode::Main), ("degraded", ServoMode::Degraded)] {
+    for (label, mode) in [("main", Mode::Main), ("degraded", Mode::Degraded)] {
         let n = 200_000u32;
         let mut best = f64::MAX;
         for _round in 0..5 {

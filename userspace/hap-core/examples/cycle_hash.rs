@@ -16,9 +16,10 @@ use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench};
 use hap_core::io::MotorLine;
+use hap_core::mode::Mode;
 use hap_core::position_log::LogRecord;
 use hap_core::protocol::MAX_FRAME_LEN;
-use hap_core::servo::{PowerRequest, ServoInputs, ServoMode};
+use hap_core::servo::{PowerRequest, ServoInputs};
 
 struct Fnv(u64);
 
@@ -90,7 +91,7 @@ fn main() {
         };
         vpr.seq = i;
         vpr.received_cycle = cycle.servo.cycle();
-        let r = cycle.run(&line, &inputs, &cfg, Some(&vpr), ServoMode::Main);
+        let r = cycle.run(&line, &inputs, &cfg, Some(&vpr), Mode::Main);
         let n = ServoCycle::encode_answers(
             &r.vp,
             1,

@@ -16,7 +16,8 @@ use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Joints, Pose, Vec3, Wrench, JOINTS_ZERO};
 use hap_core::io::MotorLine;
-use hap_core::servo::{PowerRequest, ServoInputs, ServoMode};
+use hap_core::mode::Mode;
+use hap_core::servo::{PowerRequest, ServoInputs};
 use hap_core::vp::VpReceived;
 
 const PERIODS_US: [u32; 4] = [100, 250, 1000, 10_000];
@@ -94,7 +95,7 @@ impl Rig {
         };
         let mut inp = hand([0.0; 3]);
         inp.power_request = PowerRequest::On;
-        let r = c.run(&line, &inp, &cfg, None, ServoMode::Main);
+        let r = c.run(&line, &inp, &cfg, None, Mode::Main);
         let wall = r.vp.handle_pose;
         let vpr = VpReceived {
             pose: wall,
@@ -145,7 +146,7 @@ impl Rig {
             &hand(force),
             &self.cfg,
             Some(&self.vpr),
-            ServoMode::Main,
+            Mode::Main,
         );
         (
             v3(r.vp.handle_pose.position),
@@ -586,7 +587,7 @@ fn force_steps(us: u32) -> Vec<(&'static str, f64)> {
             rig.vpr.seq = rig.vpr.seq.wrapping_add(1);
             rig.vpr.received_cycle = rig.c.servo.cycle();
             rig.c
-                .run(&rig.line, &inp, &rig.cfg, Some(&rig.vpr), ServoMode::Main);
+                .run(&rig.line, &inp, &rig.cfg, Some(&rig.vpr), Mode::Main);
             let fm = v3(rig.c.servo.control_output().handle_wrench.force);
             // The switch-off itself is a cut (0 at once, by design): only
             // the power-on ramp counts here.
@@ -637,9 +638,9 @@ fn force_steps(us: u32) -> Vec<(&'static str, f64)> {
         let mut worst: f64 = 0.0;
         for k in 0..rig.cycles(0.3) {
             let mode = if (k / 7) % 2 == 0 {
-                ServoMode::Main
+                Mode::Main
             } else {
-                ServoMode::Degraded
+                Mode::Degraded
             };
             rig.vpr.seq = rig.vpr.seq.wrapping_add(1);
             rig.vpr.received_cycle = rig.c.servo.cycle();

@@ -8,6 +8,11 @@
 //!   difference divided by 1000 is the instruction count of one cycle (setup
 //!   cancels). The period matters: the simulated arm integrates in
 //!   sub-steps of at most 500 µs (`simulator::substeps`).
+//!   `servo_steps K PERIOD_US ARMS` (ARMS 1 or 2) steps that many arms in
+//!   each cycle, one after the other as the module's SERVO does, each with
+//!   its own cycle state, motor line and script (arm 1's effort runs a
+//!   phase ahead of arm 0's): the Ir difference between ARMS = 2 and
+//!   ARMS = 1 is what the second arm adds to a cycle.
 //! * `servo_steps rt SECONDS PERIOD_US` runs the same cycle in a periodic
 //!   loop (absolute `clock_nanosleep` on CLOCK_MONOTONIC) and prints the
 //!   wake-up latency and the cycle time, like cyclictest. Start it under
@@ -19,9 +24,10 @@ use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench};
 use hap_core::io::MotorLine;
+use hap_core::mode::Mode;
 use hap_core::position_log::LogRecord;
 use hap_core::protocol::MAX_FRAME_LEN;
-use hap_core::servo::{PowerRequest, ServoInputs, ServoMode};
+use hap_core::servo::{PowerRequest, ServoInputs};
 use std::hint::black_box;
 
 /// The scripted world: effort, VPr and the output buffers of one cycle.
@@ -39,6 +45,11 @@ struct Script {
 
 impl Script {
     fn new(period_us: u32) -> Script {
+        Script::with_phase(period_us, 0)
+    }
+
+    /// A script whose effort starts `phase` cycles in.
+    fn with_phase(period_us: u32, phase: u32) -> Script {
         let mut cycle = ServoCycle::new(period_us);
         cycle.servo.init();
         let cfg = ServoConfig {
@@ -58,7 +69,7 @@ impl Script {
             lens: [0; 2],
             log: [0u8; LogRecord::SIZE],
             seq: 0,
-            i: 0,
+            i: phase,
         };
         s.step(PowerRequest::On);
         s
@@ -100,7 +111,7 @@ impl Script {
             black_box(&inputs),
             &self.cfg,
             Some(&self.vpr),
-            ServoMode::Main,
+            Mode::Main,
         );
         let seq = &mut self.seq;
         let n = ServoCycle::encode_answers(
@@ -233,14 +244,25 @@ fn main() {
         other => {
             let k: u32 = other.and_then(|a| a.parse().ok()).unwrap_or(1000);
             let period = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(1000);
-            let mut s = Script::new(period);
-            for _ in 0..k {
-                s.step(PowerRequest::None);
+            let arms: u32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(1);
+            if !(1..=2).contains(&arms) {
+                eprintln!("servo_steps: ARMS is 1 or 2, not {arms}");
+                std::process::exit(2);
             }
-            println!(
-                "{k} servo cycles, final handle position {:?}",
-                s.cycle.servo.vp().handle_pose.position
-            );
+            let mut scripts: Vec<Script> = (0..arms)
+                .map(|a| Script::with_phase(period, a * 1000))
+                .collect();
+            for _ in 0..k {
+                for s in scripts.iter_mut() {
+                    s.step(PowerRequest::None);
+                }
+            }
+            for (a, s) in scripts.iter().enumerate() {
+                println!(
+                    "{k} servo cycles, arm {a}: final handle position {:?}",
+                    s.cycle.servo.vp().handle_pose.position
+                );
+            }
         }
     }
 }

@@ -14,6 +14,8 @@
 //!   (`servo_stop`), gives [`Verdict::FailSafe`]: the kernel then executes
 //!   [`FAIL_SAFE_SEQUENCE`] in order. Fail-safe is latched.
 
+use super::mode::Mode;
+
 /// Consecutive misses that trigger fail-safe (spec §3.4: "miss_count less
 /// than 5" keeps looping).
 pub const MISS_LIMIT: u32 = 5;
@@ -63,47 +65,6 @@ pub const fn check_offset_ns(period_us: u32) -> u64 {
 /// The same offset in µs, rounded down (750 µs for 1 ms).
 pub const fn check_offset_us(period_us: u32) -> u32 {
     ((period_us as u64).saturating_mul(3) / 4) as u32
-}
-
-/// Which SERVO path runs.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Mode {
-    /// Main SERVO path.
-    #[default]
-    Normal,
-    /// Auxiliary SERVO path after a miss (spec §3.5, OCERA FT).
-    Degraded,
-    /// Fail-safe engaged: everything is being shut down.
-    FailSafe,
-}
-
-impl Mode {
-    pub const fn name(self) -> &'static str {
-        match self {
-            Mode::Normal => "normal",
-            Mode::Degraded => "degraded",
-            Mode::FailSafe => "fail_safe",
-        }
-    }
-
-    /// The mode as it crosses an atomic (`CycleHandshake`); [`Mode::from_u8`]
-    /// is its inverse.
-    pub const fn as_u8(self) -> u8 {
-        match self {
-            Mode::Normal => 0,
-            Mode::Degraded => 1,
-            Mode::FailSafe => 2,
-        }
-    }
-
-    /// The mode stored as `v`; unknown values read as `FailSafe` (the safe side).
-    pub const fn from_u8(v: u8) -> Mode {
-        match v {
-            0 => Mode::Normal,
-            1 => Mode::Degraded,
-            _ => Mode::FailSafe,
-        }
-    }
 }
 
 /// Why fail-safe was engaged.
@@ -194,7 +155,7 @@ impl Supervisor {
         Supervisor {
             miss_count: 0,
             good_streak: 0,
-            mode: Mode::Normal,
+            mode: Mode::Main,
             stop_requested: false,
             cause: None,
             max_consecutive: 0,
@@ -238,7 +199,7 @@ impl Supervisor {
             if self.mode == Mode::Degraded {
                 self.good_streak = self.good_streak.saturating_add(1);
                 if self.good_streak >= DEGRADED_EXIT_GOOD_CYCLES {
-                    self.mode = Mode::Normal;
+                    self.mode = Mode::Main;
                     self.good_streak = 0;
                 }
             }
@@ -360,7 +321,7 @@ mod tests {
     #[test]
     fn degraded_entry_and_exit() {
         let mut s = Supervisor::new();
-        assert_eq!(s.mode(), Mode::Normal);
+        assert_eq!(s.mode(), Mode::Main);
         s.check(true);
         assert_eq!(s.mode(), Mode::Degraded);
         for _ in 0..DEGRADED_EXIT_GOOD_CYCLES - 1 {
@@ -371,7 +332,7 @@ mod tests {
                 }
             );
         }
-        assert_eq!(s.check(false), Verdict::Good { mode: Mode::Normal });
+        assert_eq!(s.check(false), Verdict::Good { mode: Mode::Main });
         // A miss in the middle of recovery restarts the count.
         s.check(true);
         for _ in 0..50 {
@@ -383,7 +344,7 @@ mod tests {
         }
         assert_eq!(s.mode(), Mode::Degraded);
         s.check(false);
-        assert_eq!(s.mode(), Mode::Normal);
+        assert_eq!(s.mode(), Mode::Main);
     }
 
     #[test]

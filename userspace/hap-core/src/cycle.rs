@@ -12,9 +12,10 @@ use super::arm_io::ArmIo;
 use super::config::ServoConfig;
 use super::fixed::Fx;
 use super::io::MotorLine;
+use super::mode::Mode;
 use super::proto_synchro::{answer_frame, answer_twist_frame, twist_due, Synchro};
 use super::protocol::{encode, FrameHeader, MAX_FRAME_LEN};
-use super::servo::{Servo, ServoInputs, ServoMode};
+use super::servo::{Servo, ServoInputs};
 use super::simulator::Simulator;
 use super::vp::{VpReceived, VpSent};
 
@@ -70,7 +71,7 @@ impl<A: ArmIo> ServoCycle<A> {
         inputs: &ServoInputs,
         config: &ServoConfig,
         vpr_latest: Option<&VpReceived>,
-        mode: ServoMode,
+        mode: Mode,
     ) -> CycleResult {
         let now_cycle = self.servo.cycle();
         let est = self
@@ -150,7 +151,7 @@ mod tests {
             power_request: PowerRequest::On,
             live_effort: None,
         };
-        let r = c.run(&line, &on, &cfg, Some(&vpr), ServoMode::Main);
+        let r = c.run(&line, &on, &cfg, Some(&vpr), Mode::Main);
         assert_eq!(r.link_gain, Fx::ONE);
         // Lock busy for a long time: the estimate ages, the gain reaches 0.
         let none = ServoInputs {
@@ -159,7 +160,7 @@ mod tests {
         };
         let mut last = r;
         for _ in 0..200 {
-            last = c.run(&line, &none, &cfg, None, ServoMode::Main);
+            last = c.run(&line, &none, &cfg, None, Mode::Main);
         }
         assert!(last.extrapolated);
         assert_eq!(last.link_gain, Fx::ZERO);
@@ -196,8 +197,8 @@ mod tests {
             live_effort: None,
         };
         for _ in 0..500 {
-            let ra = a.run(&la, &inp, &cfg, None, ServoMode::Main);
-            let rb = b.run(&lb, &inp, &cfg, None, ServoMode::Main);
+            let ra = a.run(&la, &inp, &cfg, None, Mode::Main);
+            let rb = b.run(&lb, &inp, &cfg, None, Mode::Main);
             assert_eq!(ra, rb);
         }
     }

@@ -35,7 +35,16 @@
 
 use core::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
 
-use super::clock::Mode;
+use super::mode::Mode;
+
+/// The mode stored in the atomic as `v`; a byte no mode has reads as
+/// `FailSafe` (the safe side).
+const fn mode_of(v: u8) -> Mode {
+    match Mode::from_u8(v) {
+        Some(m) => m,
+        None => Mode::FailSafe,
+    }
+}
 
 /// The handshake state (see the module doc).
 #[derive(Debug)]
@@ -78,7 +87,7 @@ impl CycleHandshake {
             working: AtomicBool::new(false),
             waiting: AtomicBool::new(false),
             done_tick: AtomicU64::new(0),
-            mode: AtomicU8::new(Mode::Normal.as_u8()),
+            mode: AtomicU8::new(Mode::Main.as_u8()),
         }
     }
 
@@ -102,7 +111,7 @@ impl CycleHandshake {
         self.working.store(true, Ordering::SeqCst);
         CycleStart {
             tick: self.tick.load(Ordering::SeqCst),
-            mode: Mode::from_u8(self.mode.load(Ordering::Acquire)),
+            mode: mode_of(self.mode.load(Ordering::Acquire)),
         }
     }
 
@@ -152,7 +161,7 @@ impl CycleHandshake {
     }
 
     pub fn mode(&self) -> Mode {
-        Mode::from_u8(self.mode.load(Ordering::Acquire))
+        mode_of(self.mode.load(Ordering::Acquire))
     }
 }
 
@@ -195,13 +204,13 @@ mod tests {
     #[test]
     fn modes_round_trip_and_fail_safe_is_not_degraded() {
         let h = CycleHandshake::new();
-        assert_eq!(h.mode(), Mode::Normal);
-        for m in [Mode::Normal, Mode::Degraded, Mode::FailSafe] {
+        assert_eq!(h.mode(), Mode::Main);
+        for m in [Mode::Main, Mode::Degraded, Mode::FailSafe] {
             h.set_mode(m);
             assert_eq!(h.servo_begin().mode, m);
-            assert_eq!(Mode::from_u8(m.as_u8()), m);
+            assert_eq!(mode_of(m.as_u8()), m);
         }
-        assert_eq!(Mode::from_u8(200), Mode::FailSafe);
+        assert_eq!(mode_of(200), Mode::FailSafe);
     }
 
     #[test]

@@ -5,45 +5,7 @@
 //! and the off-line analysis read it back.
 
 use super::fixed::{Fx, Joints, Vec3, JOINTS_ZERO};
-
-/// Which path produced a [`LogRecord`].
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum LogMode {
-    /// SERVO's main path.
-    #[default]
-    Main,
-    /// SERVO's auxiliary (degraded) path, after a deadline miss.
-    Degraded,
-    /// A fail-safe step (written by the supervisor, not by a servo cycle).
-    FailSafe,
-}
-
-impl LogMode {
-    pub const fn to_u8(self) -> u8 {
-        match self {
-            LogMode::Main => 0,
-            LogMode::Degraded => 1,
-            LogMode::FailSafe => 2,
-        }
-    }
-
-    pub const fn from_u8(v: u8) -> Option<LogMode> {
-        match v {
-            0 => Some(LogMode::Main),
-            1 => Some(LogMode::Degraded),
-            2 => Some(LogMode::FailSafe),
-            _ => None,
-        }
-    }
-
-    pub const fn name(self) -> &'static str {
-        match self {
-            LogMode::Main => "main",
-            LogMode::Degraded => "degraded",
-            LogMode::FailSafe => "fail_safe",
-        }
-    }
-}
+use super::mode::Mode;
 
 /// One cycle of the binary position log (little-endian, version 2,
 /// [`LogRecord::SIZE`] bytes), streamed by the kernel to `/dev/hap_simlog`
@@ -93,7 +55,7 @@ pub struct LogRecord {
     pub flags: u16,
     pub cycle: u64,
     pub time_us: u64,
-    pub mode: LogMode,
+    pub mode: Mode,
     pub fail_safe_step: u8,
     pub vpr_age_cycles: u32,
     pub q: Joints,
@@ -164,7 +126,7 @@ impl LogRecord {
         flags: 0,
         cycle: 0,
         time_us: 0,
-        mode: LogMode::Main,
+        mode: Mode::Main,
         fail_safe_step: 0,
         vpr_age_cycles: LogRecord::NO_VPR,
         q: JOINTS_ZERO,
@@ -195,7 +157,7 @@ impl LogRecord {
         w.put(&self.flags.to_le_bytes());
         w.put(&self.cycle.to_le_bytes());
         w.put(&self.time_us.to_le_bytes());
-        w.put(&[self.mode.to_u8(), self.fail_safe_step, 0, 0]);
+        w.put(&[self.mode.as_u8(), self.fail_safe_step, 0, 0]);
         w.put(&self.vpr_age_cycles.to_le_bytes());
         w.fxs(&self.q);
         w.fxs(&self.qd);
@@ -234,7 +196,7 @@ impl LogRecord {
         let cycle = u64::from_le_bytes(r.arr());
         let time_us = u64::from_le_bytes(r.arr());
         let [mode, fail_safe_step, _, _] = r.arr::<4>();
-        let mode = LogMode::from_u8(mode).ok_or(LogDecodeError::BadMode)?;
+        let mode = Mode::from_u8(mode).ok_or(LogDecodeError::BadMode)?;
         let vpr_age_cycles = u32::from_le_bytes(r.arr());
         let q = r.fxs::<6>();
         let qd = r.fxs::<6>();

@@ -4,7 +4,8 @@
 //!
 //! # Protocol (a seqcount over atomic words)
 //!
-//! - **Write** (one writer at a time): `seq ← seq + 1` (odd: a write is in
+//! - **Write** (by the one task holding the publication's [`Writer`] role,
+//!   claimed with [`SeqWords::claim_writer`]): `seq ← seq + 1` (odd: a write is in
 //!   progress), Release fence, then the changed words (Relaxed), then
 //!   `seq ← seq + 1` (even) with Release. The writer takes no lock and
 //!   never looks at readers: a write is a bounded number of stores.
@@ -22,8 +23,10 @@
 //! `step` does exactly one access to shared memory; the tests interleave
 //! writer and reader steps exhaustively.
 
+use core::cell::Cell;
+use core::marker::PhantomData;
 use core::ops::Deref;
-use core::sync::atomic::{fence, AtomicU64, Ordering};
+use core::sync::atomic::{fence, AtomicBool, AtomicU64, Ordering};
 
 /// A read attempt overlapped a write.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -34,6 +37,42 @@ pub struct Busy;
 pub struct SeqWords<S> {
     seq: AtomicU64,
     words: S,
+    /// A [`Writer`] token is held.
+    writer_held: AtomicBool,
+}
+
+/// The publication's single writer role, held by the task that publishes:
+/// claimed once ([`SeqWords::claim_writer`]; a second claim while it is
+/// held gets `None`), given back when dropped, and not `Sync` (it cannot be
+/// shared between threads, only moved). One write at a time through it
+/// ([`Writer::write`] borrows it mutably).
+///
+/// ```compile_fail
+/// fn shared_between_threads<T: Sync>() {}
+/// shared_between_threads::<hap_core::seqlock::Writer<'static, Vec<core::sync::atomic::AtomicU64>>>();
+/// ```
+#[derive(Debug)]
+pub struct Writer<'a, S: Deref<Target = [AtomicU64]>> {
+    lock: &'a SeqWords<S>,
+    _one_task: PhantomData<Cell<()>>,
+}
+
+impl<S: Deref<Target = [AtomicU64]>> Writer<'_, S> {
+    /// Start a write; the words set through the returned guard become
+    /// visible together when it drops.
+    pub fn write(&mut self) -> SeqWriter<'_, S> {
+        let lock = self.lock;
+        let s = lock.seq.load(Ordering::Relaxed);
+        lock.seq.store(s.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        SeqWriter { lock, seq: s }
+    }
+}
+
+impl<S: Deref<Target = [AtomicU64]>> Drop for Writer<'_, S> {
+    fn drop(&mut self) {
+        self.lock.writer_held.store(false, Ordering::Release);
+    }
 }
 
 impl<S: Deref<Target = [AtomicU64]>> SeqWords<S> {
@@ -41,7 +80,19 @@ impl<S: Deref<Target = [AtomicU64]>> SeqWords<S> {
         SeqWords {
             seq: AtomicU64::new(0),
             words,
+            writer_held: AtomicBool::new(false),
         }
+    }
+
+    /// The writer role, if no task holds it.
+    pub fn claim_writer(&self) -> Option<Writer<'_, S>> {
+        self.writer_held
+            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .ok()?;
+        Some(Writer {
+            lock: self,
+            _one_task: PhantomData,
+        })
     }
 
     /// Words published.
@@ -56,15 +107,6 @@ impl<S: Deref<Target = [AtomicU64]>> SeqWords<S> {
     /// Completed writes so far (the sequence count / 2).
     pub fn generation(&self) -> u64 {
         self.seq.load(Ordering::Acquire) / 2
-    }
-
-    /// Start a write (one writer at a time); the words set through the
-    /// returned guard become visible together when it drops.
-    pub fn write(&self) -> SeqWriter<'_, S> {
-        let s = self.seq.load(Ordering::Relaxed);
-        self.seq.store(s.wrapping_add(1), Ordering::Relaxed);
-        fence(Ordering::Release);
-        SeqWriter { lock: self, seq: s }
     }
 
     /// One read attempt: copy the words into `out` (as many as fit);
@@ -84,7 +126,7 @@ impl<S: Deref<Target = [AtomicU64]>> SeqWords<S> {
     }
 }
 
-/// A write in progress (see [`SeqWords::write`]).
+/// A write in progress (see [`Writer::write`]).
 pub struct SeqWriter<'a, S: Deref<Target = [AtomicU64]>> {
     lock: &'a SeqWords<S>,
     seq: u64,
@@ -244,8 +286,9 @@ mod tests {
     #[test]
     fn write_then_read() {
         let l = words(4);
+        let mut writer = l.claim_writer().unwrap();
         {
-            let w = l.write();
+            let w = writer.write();
             w.set(0, 7);
             w.set(3, 9);
             w.set(99, 1); // out of range: ignored
@@ -259,7 +302,8 @@ mod tests {
     #[test]
     fn a_read_during_a_write_fails_and_the_writer_goes_on() {
         let l = words(2);
-        let w = l.write();
+        let mut writer = l.claim_writer().unwrap();
+        let w = writer.write();
         w.set(0, 1);
         let mut out = [0u64; 2];
         assert_eq!(l.try_read(&mut out), Err(Busy));
@@ -267,6 +311,27 @@ mod tests {
         drop(w);
         assert_eq!(l.read(&mut out, 10), Some(1));
         assert_eq!(out, [1, 0]);
+    }
+
+    /// A role token moves to the thread that plays it (the doc tests show
+    /// it is not `Sync`: no two threads share it).
+    #[test]
+    fn a_role_moves_between_threads() {
+        fn moved_between_threads<T: Send>() {}
+        moved_between_threads::<Writer<'static, Vec<AtomicU64>>>();
+    }
+
+    #[test]
+    fn the_writer_role_is_held_once_and_given_back_when_dropped() {
+        let l = words(1);
+        let mut writer = l.claim_writer().unwrap();
+        assert!(l.claim_writer().is_none(), "a second writer");
+        writer.write().set(0, 5);
+        drop(writer);
+        l.claim_writer().unwrap().write().set(0, 6);
+        let mut out = [0u64; 1];
+        assert_eq!(l.read(&mut out, 1), Some(2));
+        assert_eq!(out, [6]);
     }
 
     /// Every interleaving of `writes` writer operations (each setting all

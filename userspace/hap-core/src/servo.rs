@@ -6,7 +6,7 @@
 //! `cartesian_control` → `send_commands` (inhibited unless powered) →
 //! `simulate_arm` (one period) → fill VP and the `LogRecord`.
 //!
-//! `ServoMode::Main` is the normal path. `ServoMode::Degraded` is the spec's
+//! `Mode::Main` is the normal path. `Mode::Degraded` is the spec's
 //! auxiliary SERVO path, entered after a deadline miss: the same code (spec
 //! §3.5) and the same gains, which are scheduled for an effective period of
 //! 2T (a missed deadline may double it), so switching path injects no
@@ -32,7 +32,7 @@ use super::simulator::Simulator;
 use super::state_model::{build_logical_state, build_physical_state};
 use super::vp::{alarm, status, VpReceived, VpSent};
 
-pub use super::mode::ServoMode;
+use super::mode::Mode;
 
 /// A power request from the (simulated) arm's power button.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -299,11 +299,12 @@ impl<A: ArmIo> Servo<A> {
         inputs: &ServoInputs,
         config: &ServoConfig,
         vpr: &VpReceived,
-        mode: ServoMode,
+        mode: Mode,
     ) -> &VpSent {
         if !self.initialized {
             self.init();
         }
+        let mode = mode.servo_path();
         // Power request (the arm's power button).
         match inputs.power_request {
             PowerRequest::None => {}
@@ -324,7 +325,7 @@ impl<A: ArmIo> Servo<A> {
         };
         self.sim.set_user_effort(&user);
 
-        if mode == ServoMode::Degraded {
+        if mode == Mode::Degraded {
             // The supervisor puts SERVO on its degraded path after a miss.
             self.alarms |= alarm::DEADLINE_MISS;
         }
@@ -370,7 +371,7 @@ impl<A: ArmIo> Servo<A> {
             flags,
             cycle: self.cycle,
             time_us: t_us,
-            mode: mode.log_mode(),
+            mode,
             fail_safe_step: 0,
             vpr_age_cycles: if vpr.valid {
                 u32::try_from(self.cycle.saturating_sub(vpr.received_cycle)).unwrap_or(u32::MAX)
@@ -426,7 +427,7 @@ impl StandaloneServo {
         inputs: &ServoInputs,
         config: &ServoConfig,
         vpr: &VpReceived,
-        mode: ServoMode,
+        mode: Mode,
     ) -> &VpSent {
         self.servo.step(&self.line, inputs, config, vpr, mode)
     }

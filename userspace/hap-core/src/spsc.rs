@@ -27,19 +27,31 @@
 //! that has been read. Neither side ever waits for the other: a push and a
 //! pop are a bounded number of steps each.
 //!
-//! There must be at most one producer and one consumer at a time (callers
-//! serialise several writers or readers among themselves, e.g. with a lock
-//! the other side never takes). Every word is an atomic, so even a protocol
-//! violation is no data race: at worst a record reads torn, and a length
-//! word out of range reads as a refused record, never a panic.
+//! # Roles
 //!
-//! Each operation is a small state machine ([`PushOp`], [`PopOp`]) whose
+//! At most one producer and one consumer at a time, as types: a push needs
+//! the ring's [`Producer`], a pop or a discard its [`Consumer`]. Each is
+//! claimed from the ring ([`Spsc::claim_producer`],
+//! [`Spsc::claim_consumer`]; a second claim while one is held gets `None`),
+//! held by the task that plays the role (it is not `Sync`: it cannot be
+//! shared between threads, only moved) and gives the role back when
+//! dropped. A task that pushes for the whole run keeps its token; several
+//! writers that take turns (device writes under a lock, two real-time
+//! producers that must never wait for each other) claim it for one push.
+//! Every word is an atomic, so even a protocol violation would be no data
+//! race: at worst a record reads torn, and a length word out of range reads
+//! as a refused record, never a panic.
+//!
+//! Each operation is a small state machine (`PushOp`, `PopOp`) whose
 //! `step` does exactly one access to shared memory, so that tests can
 //! interleave producer and consumer steps exhaustively (see the tests at the
-//! end). [`Spsc::push`] and [`Spsc::pop`] run the same machines to the end.
+//! end). [`Producer::push`] and [`Consumer::pop`] run the same machines to
+//! the end.
 
+use core::cell::Cell;
+use core::marker::PhantomData;
 use core::ops::Deref;
-use core::sync::atomic::{AtomicU64, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// Words a slot needs for records of at most `record_bytes` bytes.
 pub const fn slot_words(record_bytes: usize) -> usize {
@@ -69,6 +81,80 @@ pub struct Spsc<S> {
     record_bytes: usize,
     capacity: usize,
     words: S,
+    /// A [`Producer`] / [`Consumer`] token is held.
+    producer_held: AtomicBool,
+    consumer_held: AtomicBool,
+}
+
+/// The ring's single producer role, held by the task that pushes (see the
+/// module doc): not `Sync`, so no two threads push through it at once.
+///
+/// ```compile_fail
+/// fn shared_between_threads<T: Sync>() {}
+/// shared_between_threads::<hap_core::spsc::Producer<'static, Vec<core::sync::atomic::AtomicU64>>>();
+/// ```
+#[derive(Debug)]
+pub struct Producer<'a, S: Deref<Target = [AtomicU64]>> {
+    ring: &'a Spsc<S>,
+    _one_task: PhantomData<Cell<()>>,
+}
+
+/// The ring's single consumer role, held by the task that pops; not
+/// `Sync` either.
+///
+/// ```compile_fail
+/// fn shared_between_threads<T: Sync>() {}
+/// shared_between_threads::<hap_core::spsc::Consumer<'static, Vec<core::sync::atomic::AtomicU64>>>();
+/// ```
+#[derive(Debug)]
+pub struct Consumer<'a, S: Deref<Target = [AtomicU64]>> {
+    ring: &'a Spsc<S>,
+    _one_task: PhantomData<Cell<()>>,
+}
+
+impl<S: Deref<Target = [AtomicU64]>> Producer<'_, S> {
+    /// Queue `rec`, or refuse it (counted).
+    pub fn push(&self, rec: &[u8]) -> Result<(), PushError> {
+        let mut op = PushOp::new(rec);
+        loop {
+            if let Some(r) = op.step(self.ring) {
+                return r;
+            }
+        }
+    }
+}
+
+impl<S: Deref<Target = [AtomicU64]>> Drop for Producer<'_, S> {
+    fn drop(&mut self) {
+        self.ring.producer_held.store(false, Ordering::Release);
+    }
+}
+
+impl<S: Deref<Target = [AtomicU64]>> Consumer<'_, S> {
+    /// Take the oldest record into `out` (at least `record_bytes` long);
+    /// its length, or `None` when empty. A record whose stored length is
+    /// out of range (impossible under the protocol) is consumed and
+    /// returned as length 0.
+    pub fn pop(&self, out: &mut [u8]) -> Option<usize> {
+        let mut op = PopOp::new(out);
+        loop {
+            if let Some(r) = op.step(self.ring) {
+                return r;
+            }
+        }
+    }
+
+    /// Drop everything queued now.
+    pub fn discard(&self) {
+        let h = self.ring.head.load(Ordering::Acquire);
+        self.ring.tail.store(h, Ordering::Release);
+    }
+}
+
+impl<S: Deref<Target = [AtomicU64]>> Drop for Consumer<'_, S> {
+    fn drop(&mut self) {
+        self.ring.consumer_held.store(false, Ordering::Release);
+    }
 }
 
 impl<S: Deref<Target = [AtomicU64]>> Spsc<S> {
@@ -86,7 +172,31 @@ impl<S: Deref<Target = [AtomicU64]>> Spsc<S> {
             record_bytes,
             capacity,
             words,
+            producer_held: AtomicBool::new(false),
+            consumer_held: AtomicBool::new(false),
         }
+    }
+
+    /// The producer role, if no task holds it.
+    pub fn claim_producer(&self) -> Option<Producer<'_, S>> {
+        self.producer_held
+            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .ok()?;
+        Some(Producer {
+            ring: self,
+            _one_task: PhantomData,
+        })
+    }
+
+    /// The consumer role, if no task holds it.
+    pub fn claim_consumer(&self) -> Option<Consumer<'_, S>> {
+        self.consumer_held
+            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .ok()?;
+        Some(Consumer {
+            ring: self,
+            _one_task: PhantomData,
+        })
     }
 
     pub fn capacity(&self) -> usize {
@@ -118,35 +228,6 @@ impl<S: Deref<Target = [AtomicU64]>> Spsc<S> {
     /// Records refused (full ring or too long).
     pub fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
-    }
-
-    /// The producer's side: queue `rec`, or refuse it (counted).
-    pub fn push(&self, rec: &[u8]) -> Result<(), PushError> {
-        let mut op = PushOp::new(rec);
-        loop {
-            if let Some(r) = op.step(self) {
-                return r;
-            }
-        }
-    }
-
-    /// The consumer's side: take the oldest record into `out` (at least
-    /// `record_bytes` long); its length, or `None` when empty. A record
-    /// whose stored length is out of range (impossible under the protocol)
-    /// is consumed and returned as length 0.
-    pub fn pop(&self, out: &mut [u8]) -> Option<usize> {
-        let mut op = PopOp::new(out);
-        loop {
-            if let Some(r) = op.step(self) {
-                return r;
-            }
-        }
-    }
-
-    /// The consumer's side: drop everything queued now.
-    pub fn discard(&self) {
-        let h = self.head.load(Ordering::Acquire);
-        self.tail.store(h, Ordering::Release);
     }
 
     fn slot_base(&self, n: u64) -> usize {
@@ -201,13 +282,13 @@ enum PushState {
 
 /// One push, as single shared-memory steps (see the module doc).
 #[derive(Clone, Debug)]
-pub struct PushOp<'a> {
+pub(crate) struct PushOp<'a> {
     rec: &'a [u8],
     state: PushState,
 }
 
 impl<'a> PushOp<'a> {
-    pub fn new(rec: &'a [u8]) -> Self {
+    pub(crate) fn new(rec: &'a [u8]) -> Self {
         PushOp {
             rec,
             state: PushState::LoadTail,
@@ -215,7 +296,7 @@ impl<'a> PushOp<'a> {
     }
 
     /// Do the next step; `Some(outcome)` once the push is over.
-    pub fn step<S: Deref<Target = [AtomicU64]>>(
+    pub(crate) fn step<S: Deref<Target = [AtomicU64]>>(
         &mut self,
         r: &Spsc<S>,
     ) -> Option<Result<(), PushError>> {
@@ -292,13 +373,13 @@ enum PopState {
 
 /// One pop, as single shared-memory steps (see the module doc).
 #[derive(Debug)]
-pub struct PopOp<'a> {
+pub(crate) struct PopOp<'a> {
     out: &'a mut [u8],
     state: PopState,
 }
 
 impl<'a> PopOp<'a> {
-    pub fn new(out: &'a mut [u8]) -> Self {
+    pub(crate) fn new(out: &'a mut [u8]) -> Self {
         PopOp {
             out,
             state: PopState::LoadHead,
@@ -307,7 +388,10 @@ impl<'a> PopOp<'a> {
 
     /// Do the next step; `Some(Some(len))` once a record is taken,
     /// `Some(None)` if the ring was empty.
-    pub fn step<S: Deref<Target = [AtomicU64]>>(&mut self, r: &Spsc<S>) -> Option<Option<usize>> {
+    pub(crate) fn step<S: Deref<Target = [AtomicU64]>>(
+        &mut self,
+        r: &Spsc<S>,
+    ) -> Option<Option<usize>> {
         match self.state {
             PopState::LoadHead => {
                 let head = r.head.load(Ordering::Acquire);
@@ -378,35 +462,37 @@ mod tests {
     #[test]
     fn fifo_order_full_and_empty() {
         let r = ring(3, 20);
+        let (p, c) = (r.claim_producer().unwrap(), r.claim_consumer().unwrap());
         assert_eq!(r.capacity(), 3);
         let mut out = [0u8; 20];
-        assert_eq!(r.pop(&mut out), None);
+        assert_eq!(c.pop(&mut out), None);
         for i in 0..3u8 {
             let rec = [i; 20];
-            r.push(&rec[..usize::from(i) + 9]).unwrap();
+            p.push(&rec[..usize::from(i) + 9]).unwrap();
         }
-        assert_eq!(r.push(b"x"), Err(PushError::Full));
+        assert_eq!(p.push(b"x"), Err(PushError::Full));
         assert_eq!(r.dropped(), 1);
         assert_eq!(r.len(), 3);
         for i in 0..3u8 {
-            let n = r.pop(&mut out).unwrap();
+            let n = c.pop(&mut out).unwrap();
             assert_eq!(n, usize::from(i) + 9);
             assert!(out[..n].iter().all(|b| *b == i));
         }
-        assert_eq!(r.pop(&mut out), None);
+        assert_eq!(c.pop(&mut out), None);
         assert_eq!(r.pushed(), 3);
     }
 
     #[test]
     fn wraps_around_many_times() {
         let r = ring(4, 13);
+        let (p, c) = (r.claim_producer().unwrap(), r.claim_consumer().unwrap());
         let mut out = [0u8; 13];
         let mut next_out = 0u32;
         for i in 0..1000u32 {
             let rec: Vec<u8> = (0..13).map(|k| (i as u8).wrapping_add(k)).collect();
-            r.push(&rec).unwrap();
+            p.push(&rec).unwrap();
             if i % 3 != 0 {
-                while let Some(n) = r.pop(&mut out) {
+                while let Some(n) = c.pop(&mut out) {
                     assert_eq!(n, 13);
                     let expect: Vec<u8> =
                         (0..13).map(|k| (next_out as u8).wrapping_add(k)).collect();
@@ -421,29 +507,94 @@ mod tests {
     #[test]
     fn too_long_and_zero_capacity_are_refused_not_panics() {
         let r = ring(2, 8);
-        assert_eq!(r.push(&[0u8; 9]), Err(PushError::TooLong));
+        let (p, c) = (r.claim_producer().unwrap(), r.claim_consumer().unwrap());
+        assert_eq!(p.push(&[0u8; 9]), Err(PushError::TooLong));
         let empty: Spsc<Vec<AtomicU64>> = Spsc::new(Vec::new(), 8);
         assert_eq!(empty.capacity(), 0);
-        assert_eq!(empty.push(b"a"), Err(PushError::Full));
-        assert_eq!(empty.pop(&mut [0u8; 8]), None);
+        let (ep, ec) = (
+            empty.claim_producer().unwrap(),
+            empty.claim_consumer().unwrap(),
+        );
+        assert_eq!(ep.push(b"a"), Err(PushError::Full));
+        assert_eq!(ec.pop(&mut [0u8; 8]), None);
         // A short output buffer: the record is consumed, reported as 0 bytes.
-        r.push(b"12345678").unwrap();
+        p.push(b"12345678").unwrap();
         let mut small = [0u8; 4];
-        assert_eq!(r.pop(&mut small), Some(0));
+        assert_eq!(c.pop(&mut small), Some(0));
         assert!(r.is_empty());
     }
 
     #[test]
     fn discard_empties_the_ring() {
         let r = ring(4, 8);
-        r.push(b"a").unwrap();
-        r.push(b"b").unwrap();
-        r.discard();
-        assert_eq!(r.pop(&mut [0u8; 8]), None);
-        r.push(b"c").unwrap();
+        let (p, c) = (r.claim_producer().unwrap(), r.claim_consumer().unwrap());
+        p.push(b"a").unwrap();
+        p.push(b"b").unwrap();
+        c.discard();
+        assert_eq!(c.pop(&mut [0u8; 8]), None);
+        p.push(b"c").unwrap();
         let mut out = [0u8; 8];
-        assert_eq!(r.pop(&mut out), Some(1));
+        assert_eq!(c.pop(&mut out), Some(1));
         assert_eq!(out[0], b'c');
+    }
+
+    /// A role token moves to the thread that plays it (the doc tests show
+    /// it is not `Sync`: no two threads share it).
+    #[test]
+    fn a_role_moves_between_threads() {
+        fn moved_between_threads<T: Send>() {}
+        moved_between_threads::<Producer<'static, Vec<AtomicU64>>>();
+        moved_between_threads::<Consumer<'static, Vec<AtomicU64>>>();
+    }
+
+    #[test]
+    fn each_role_is_held_once_and_given_back_when_dropped() {
+        let r = ring(4, 8);
+        let p = r.claim_producer().unwrap();
+        assert!(r.claim_producer().is_none(), "a second producer");
+        let c = r.claim_consumer().unwrap();
+        assert!(r.claim_consumer().is_none(), "a second consumer");
+        p.push(b"a").unwrap();
+        drop(p);
+        // The role is free again: a next writer takes its turn.
+        r.claim_producer().unwrap().push(b"b").unwrap();
+        let mut out = [0u8; 8];
+        assert_eq!(c.pop(&mut out), Some(1));
+        assert_eq!(out[0], b'a');
+        drop(c);
+        assert_eq!(r.claim_consumer().unwrap().pop(&mut out), Some(1));
+        assert_eq!(out[0], b'b');
+    }
+
+    #[test]
+    fn a_producer_thread_and_a_consumer_thread() {
+        let r = ring(8, 16);
+        let n = 20_000u32;
+        std::thread::scope(|s| {
+            let r = &r;
+            s.spawn(move || {
+                let p = r.claim_producer().unwrap();
+                let mut i = 0u32;
+                while i < n {
+                    if p.push(&i.to_le_bytes()).is_ok() {
+                        i += 1;
+                    }
+                }
+            });
+            s.spawn(move || {
+                let c = r.claim_consumer().unwrap();
+                let mut out = [0u8; 16];
+                let mut want = 0u32;
+                while want < n {
+                    if let Some(len) = c.pop(&mut out) {
+                        assert_eq!(len, 4);
+                        assert_eq!(u32::from_le_bytes([out[0], out[1], out[2], out[3]]), want);
+                        want += 1;
+                    }
+                }
+            });
+        });
+        assert!(r.is_empty());
     }
 
     /// One side's script: a list of operations, each run step by step.
@@ -605,7 +756,8 @@ mod tests {
         // The rest is still there, in order.
         let mut rest = Vec::new();
         let mut buf = [0u8; 64];
-        while let Some(n) = w.ring.pop(&mut buf) {
+        let c = w.ring.claim_consumer().unwrap();
+        while let Some(n) = c.pop(&mut buf) {
             rest.push(buf[..n].to_vec());
         }
         assert_eq!(w.popped.len() + rest.len(), accepted.len());

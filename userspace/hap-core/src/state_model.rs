@@ -8,7 +8,7 @@ use super::arm_io::Measures;
 use super::config::{CommandType, IndexingMode, ServoConfig};
 use super::fixed::{Joints, Pose, Twist, Wrench};
 use super::io::Gate;
-use super::mode::ServoMode;
+use super::mode::Mode;
 use super::vp::{alarm, status};
 
 /// What the controller knows about the arm's logic this cycle.
@@ -17,7 +17,7 @@ pub struct LogicalState {
     pub power_on: bool,
     /// Power on and motor commands not inhibited.
     pub motors_enabled: bool,
-    pub mode: ServoMode,
+    pub mode: Mode,
     pub command_type: CommandType,
     pub dead_man: bool,
     /// Bit 0: button 1 (indexing), bit 1: button 2.
@@ -36,7 +36,7 @@ pub fn build_logical_state(
     m: &Measures,
     gate: Gate,
     config: &ServoConfig,
-    mode: ServoMode,
+    mode: Mode,
     latched_alarms: u32,
 ) -> LogicalState {
     let motors_enabled = gate == Gate::Enabled && m.power_on;
@@ -57,7 +57,7 @@ pub fn build_logical_state(
     if m.buttons & 2 != 0 {
         st |= status::BUTTON_2;
     }
-    if mode == ServoMode::Degraded {
+    if mode == Mode::Degraded {
         st |= status::DEGRADED;
     }
     let mut alarms = latched_alarms;

@@ -393,7 +393,7 @@ impl HapStats {
         match *v {
             Verdict::Good { mode } => {
                 c.cycles = c.cycles.saturating_add(1);
-                if mode == super::clock::Mode::Degraded {
+                if mode == super::mode::Mode::Degraded {
                     c.degraded_cycles = c.degraded_cycles.saturating_add(1);
                 }
             }
@@ -949,7 +949,8 @@ pub fn parse_summary(text: &str) -> Result<StatsSummary, ParseError> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::clock::{FailSafeCause, Mode};
+    use super::super::clock::FailSafeCause;
+    use super::super::mode::Mode;
     use super::*;
 
     fn views(st: &HapStats) -> Vec<HistogramView<'_>> {
@@ -1080,7 +1081,7 @@ mod tests {
                 .record_ns(3_000 + (i * 53) % 40_000 + if i % 997 == 0 { 2_000_000 } else { 0 });
             s.jitter.top(i * 1_000_000 + (i * 7919) % 3_000);
         }
-        s.record_verdict(&Verdict::Good { mode: Mode::Normal });
+        s.record_verdict(&Verdict::Good { mode: Mode::Main });
         s.record_verdict(&Verdict::Miss { consecutive: 1 });
         s.record_verdict(&Verdict::Miss { consecutive: 2 });
         s.record_verdict(&Verdict::Good {
@@ -1174,7 +1175,7 @@ mod tests {
                 i % 7 != 0,
             );
             st.record_verdict(&Verdict::Good {
-                mode: super::super::clock::Mode::Normal,
+                mode: super::super::mode::Mode::Main,
             });
         }
         st.record_cycle(1 << 40, (1 << 40) + 5, (1 << 40) + 2_000_000, 0, false);
@@ -1215,7 +1216,7 @@ mod tests {
                 Verdict::Miss { consecutive: 1 }
             } else {
                 Verdict::Good {
-                    mode: super::super::clock::Mode::Normal,
+                    mode: super::super::mode::Mode::Main,
                 }
             });
             st.visit_words(WordSet::Recent, |k, w| published[k] = *w);

@@ -10,7 +10,7 @@ use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Joints, Pose, Quat, Vec3, Wrench};
 use hap_core::io::{Gate, MotorLine};
-use hap_core::mode::ServoMode;
+use hap_core::mode::Mode;
 use hap_core::position_log::LogRecord;
 use hap_core::servo::{PowerRequest, ServoInputs};
 use hap_core::simulator::Simulator;
@@ -148,7 +148,7 @@ fn run<A: ArmIo>(c: &mut ServoCycle<A>, cycles: u32, cut_at: u32) -> Trace {
         };
         vpr.seq = i;
         vpr.received_cycle = c.servo.cycle();
-        let r = c.run(&line, &inputs, &cfg, Some(&vpr), ServoMode::Main);
+        let r = c.run(&line, &inputs, &cfg, Some(&vpr), Mode::Main);
         let mut log = [0u8; LogRecord::SIZE];
         c.servo.log_record().encode(&mut log);
         trace.push((r.vp, log));

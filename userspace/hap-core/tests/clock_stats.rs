@@ -2,6 +2,7 @@
 //! stats.rs (percentiles vs a sorted vector, render → parse round trip).
 
 use hap_core::clock::*;
+use hap_core::mode::Mode;
 use hap_core::protocol::DecodeError;
 use hap_core::stats::*;
 use proptest::prelude::*;
@@ -40,7 +41,7 @@ proptest! {
                         good = 0;
                     }
                 }
-                let mode = if degraded { Mode::Degraded } else { Mode::Normal };
+                let mode = if degraded { Mode::Degraded } else { Mode::Main };
                 prop_assert_eq!(v, Verdict::Good { mode });
             }
         }

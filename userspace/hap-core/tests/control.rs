@@ -7,7 +7,8 @@ use hap_core::config::{CommandType, IndexingMode, ServoConfig, VirtualObjectPara
 use hap_core::control::{Gains, MAX_FORCE, MAX_TORQUE};
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
-use hap_core::servo::{PowerRequest, ServoInputs, ServoMode, StandaloneServo};
+use hap_core::mode::Mode;
+use hap_core::servo::{PowerRequest, ServoInputs, StandaloneServo};
 use hap_core::vp::{alarm, status, VpReceived};
 use rand::{Rng, SeedableRng};
 
@@ -36,7 +37,7 @@ fn powered_servo_at_work() -> StandaloneServo {
         },
         &cfg,
         &VpReceived::default(),
-        ServoMode::Main,
+        Mode::Main,
     );
     s
 }
@@ -65,7 +66,7 @@ fn coupling_to_a_static_object_converges() {
     };
     let mut first_force = 0.0;
     for n in 0..3000 {
-        let vp = s.step(&inputs, &cfg, &vpr, ServoMode::Main);
+        let vp = s.step(&inputs, &cfg, &vpr, Mode::Main);
         assert!(vp.status & status::COUPLED != 0);
         if n == 0 {
             // Soft start: the first cycle carries at most one ramp step.
@@ -130,7 +131,7 @@ fn wall_run(gains: Gains, push: f64, seconds: usize) -> (Vec<f64>, f64, u32, Sta
             power_request: PowerRequest::None,
             live_effort: held([f, 0.0, 0.0]),
         };
-        s.step(&inputs, &cfg, &vpr, ServoMode::Main);
+        s.step(&inputs, &cfg, &vpr, Mode::Main);
         xs.push(s.vp().handle_pose.position.x.to_f64() - x_wall);
         let e = s.controller().po_energy().to_f64();
         if s.controller().coupled() {
@@ -201,7 +202,7 @@ fn saturation_never_exceeded_over_1e6_randomized_cycles() {
         power_request: PowerRequest::On,
         live_effort: held([0.0; 3]),
     };
-    let mut mode = ServoMode::Main;
+    let mut mode = Mode::Main;
     let mut sat_seen = 0u64;
     let mut coupled = 0u64;
     let tau_max = arm::TAU_MAX;
@@ -250,9 +251,9 @@ fn saturation_never_exceeded_over_1e6_randomized_cycles() {
                 buttons: rng.gen_range(0..4),
             });
             mode = if rng.gen_bool(0.1) {
-                ServoMode::Degraded
+                Mode::Degraded
             } else {
-                ServoMode::Main
+                Mode::Main
             };
             inputs.power_request = match rng.gen_range(0..20) {
                 0 => PowerRequest::Off,

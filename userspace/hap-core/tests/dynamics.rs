@@ -14,7 +14,8 @@ use hap_core::config::ServoConfig;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Vec3, Wrench, JOINTS_ZERO};
 use hap_core::io::MotorLine;
-use hap_core::servo::{PowerRequest, ServoInputs, ServoMode, StandaloneServo};
+use hap_core::mode::Mode;
+use hap_core::servo::{PowerRequest, ServoInputs, StandaloneServo};
 use hap_core::simulator::Simulator;
 use hap_core::vp::VpReceived;
 use nalgebra::Vector3;
@@ -221,9 +222,9 @@ fn run_free(gravity_compensation: bool) -> (f64, f64) {
         power_request: PowerRequest::On,
         live_effort: None,
     };
-    s.step(&on, &cfg, &vpr, ServoMode::Main);
+    s.step(&on, &cfg, &vpr, Mode::Main);
     for _ in 0..1000 {
-        s.step(&ServoInputs::default(), &cfg, &vpr, ServoMode::Main);
+        s.step(&ServoInputs::default(), &cfg, &vpr, Mode::Main);
     }
     let q = s.simulator().q;
     let dq = q

@@ -14,7 +14,8 @@ use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Joints, Pose, Vec3, Wrench, JOINTS_ZERO};
 use hap_core::io::MotorLine;
-use hap_core::servo::{PowerRequest, ServoInputs, ServoMode};
+use hap_core::mode::Mode;
+use hap_core::servo::{PowerRequest, ServoInputs};
 use hap_core::vp::VpReceived;
 
 struct Rig {
@@ -56,7 +57,7 @@ impl Rig {
             &hand([0.0; 3], PowerRequest::On),
             &cfg,
             None,
-            ServoMode::Main,
+            Mode::Main,
         );
         let wall = r.vp.handle_pose;
         let vpr = VpReceived {
@@ -90,7 +91,7 @@ impl Rig {
             &hand(force, PowerRequest::None),
             &self.cfg,
             Some(&self.vpr),
-            ServoMode::Main,
+            Mode::Main,
         );
         let p = r.vp.handle_pose.position.to_f64();
         let w = self.wall.position.to_f64();

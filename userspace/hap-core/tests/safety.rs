@@ -14,7 +14,8 @@ use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Joints, Pose, Vec3, Wrench, JOINTS_ZERO};
 use hap_core::io::MotorLine;
-use hap_core::servo::{log_flags, PowerRequest, ServoInputs, ServoMode};
+use hap_core::mode::Mode;
+use hap_core::servo::{log_flags, PowerRequest, ServoInputs};
 use hap_core::vp::{alarm, status, VpReceived};
 use nalgebra::{Matrix3x6, Matrix6, SymmetricEigen};
 use rand::{Rng, SeedableRng};
@@ -246,7 +247,7 @@ fn absurd_client_gains_stay_inside_the_bound() {
         v.received_cycle = n;
         v.twist.linear = Vec3::from_f64([1e8, 0.0, -1e8]);
         v.twist.angular = Vec3::from_f64([-1e8, 1e8, 0.0]);
-        let r = c.run(&line, &held, &cfg, Some(&v), ServoMode::Main);
+        let r = c.run(&line, &held, &cfg, Some(&v), Mode::Main);
         let hw = c.servo.control_output().handle_wrench;
         assert!(hw.force.norm() <= MAX_FORCE.add_sat(Fx(64)));
         assert!(hw.torque.norm() <= hap_core::control::MAX_TORQUE.add_sat(Fx(64)));
@@ -289,7 +290,7 @@ fn coupled_cycle(period_us: u32) -> (ServoCycle, MotorLine, ServoConfig, VpRecei
     };
     let mut on = held([0.0; 3]);
     on.power_request = PowerRequest::On;
-    c.run(&line, &on, &cfg, None, ServoMode::Main);
+    c.run(&line, &on, &cfg, None, Mode::Main);
     let mut pose = c.servo.vp().handle_pose;
     pose.position.x = pose.position.x.add_sat(Fx::from_ratio(4, 1000));
     let vpr = VpReceived {
@@ -312,7 +313,7 @@ fn plain_coupled_step_never_latches_passivity() {
             vpr.received_cycle = c.servo.cycle();
             vpr.seq = n as u32;
             let push = if n > 1000 { [5.0, 0.0, -3.0] } else { [0.0; 3] };
-            let r = c.run(&line, &held(push), &cfg, Some(&vpr), ServoMode::Main);
+            let r = c.run(&line, &held(push), &cfg, Some(&vpr), Mode::Main);
             if r.vp.status & status::COUPLED != 0 {
                 coupled += 1;
                 min_e = min_e.min(f(c.servo.controller().po_energy()));
@@ -337,14 +338,14 @@ fn link_loss_fades_the_motor_force_and_resume_ramps_it() {
     for n in 0..400u64 {
         vpr.received_cycle = c.servo.cycle();
         vpr.seq = n as u32;
-        c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+        c.run(&line, &push, &cfg, Some(&vpr), Mode::Main);
     }
     let full = c.servo.control_output().handle_wrench.force.norm().to_f64();
     assert!(full > 2.0, "{full}");
     // The client goes silent: the motor force follows the fade.
     let mut forces = Vec::new();
     for _ in 0..150 {
-        let r = c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+        let r = c.run(&line, &push, &cfg, Some(&vpr), Mode::Main);
         let hw = c.servo.control_output().handle_wrench.force.norm().to_f64();
         assert!(hw <= r.link_gain.to_f64() * MAX_FORCE.to_f64() + 1e-6);
         forces.push((r.link_gain.to_f64(), hw));
@@ -364,7 +365,7 @@ fn link_loss_fades_the_motor_force_and_resume_ramps_it() {
     let mut prev = 0.0;
     for k in 0..100u64 {
         vpr.received_cycle = c.servo.cycle();
-        c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+        c.run(&line, &push, &cfg, Some(&vpr), Mode::Main);
         let hw = c.servo.control_output().handle_wrench.force.norm().to_f64();
         assert!(
             hw <= MAX_FORCE.to_f64() * (k as f64 + 1.0) * 0.02 + 1e-6,
@@ -385,7 +386,7 @@ fn session_close_ramps_down_and_power_on_ramps_up() {
     for n in 0..400u64 {
         vpr.received_cycle = c.servo.cycle();
         vpr.seq = n as u32;
-        c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+        c.run(&line, &push, &cfg, Some(&vpr), Mode::Main);
         first.push(c.servo.control_output().handle_wrench.force.norm().to_f64());
     }
     // Soft start: the force rises at most 0.4 N/ms.
@@ -398,7 +399,7 @@ fn session_close_ramps_down_and_power_on_ramps_up() {
     let gone = VpReceived::default();
     let mut down = Vec::new();
     for _ in 0..60 {
-        c.run(&line, &push, &cfg, Some(&gone), ServoMode::Main);
+        c.run(&line, &push, &cfg, Some(&gone), Mode::Main);
         down.push(c.servo.control_output().handle_wrench.force.norm().to_f64());
     }
     assert!(down[0] > 0.9 * full - 1.0, "{} vs {full}", down[0]);
@@ -415,7 +416,7 @@ fn fail_safe_cut_gives_torque_zero_at_the_motors_from_the_cut_on() {
     for n in 0..300u64 {
         vpr.received_cycle = c.servo.cycle();
         vpr.seq = n as u32;
-        c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+        c.run(&line, &push, &cfg, Some(&vpr), Mode::Main);
     }
     assert_ne!(line.applied(), JOINTS_ZERO);
     line.fail_safe_inhibit();
@@ -423,7 +424,7 @@ fn fail_safe_cut_gives_torque_zero_at_the_motors_from_the_cut_on() {
     assert_eq!(line.applied(), JOINTS_ZERO);
     for _ in 0..200 {
         vpr.received_cycle = c.servo.cycle();
-        c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+        c.run(&line, &push, &cfg, Some(&vpr), Mode::Main);
         assert_eq!(line.applied(), JOINTS_ZERO);
         assert_eq!(c.servo.log_record().motor_torque, JOINTS_ZERO);
         assert_ne!(c.servo.log_record().flags & log_flags::LINE_CUT, 0);
@@ -439,9 +440,9 @@ fn degraded_switches_inject_no_energy() {
         vpr.received_cycle = c.servo.cycle();
         vpr.seq = n as u32;
         let mode = if n % 150 == 0 || n % 7 == 3 {
-            ServoMode::Degraded
+            Mode::Degraded
         } else {
-            ServoMode::Main
+            Mode::Main
         };
         let g0 = c.servo.controller().effective_gains();
         c.run(&line, &push, &cfg, Some(&vpr), mode);
@@ -493,13 +494,13 @@ fn stiffer_gains_on_a_mode_switch_keep_the_force_and_inject_nothing() {
     for n in 0..600u64 {
         vpr.received_cycle = c.servo.cycle();
         vpr.seq = n as u32;
-        c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+        c.run(&line, &push, &cfg, Some(&vpr), Mode::Main);
     }
     let before = c.servo.control_output().handle_wrench.force.norm().to_f64();
     // Switch to Impedance: K jumps to the nominal 203 N/m.
     cfg.command_type = CommandType::Impedance;
     vpr.received_cycle = c.servo.cycle();
-    c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+    c.run(&line, &push, &cfg, Some(&vpr), Mode::Main);
     let after = c.servo.control_output().handle_wrench.force.norm().to_f64();
     println!("force before {before:.3} N, after the switch {after:.3} N");
     assert!((after - before).abs() < 0.5, "{before} → {after}");
@@ -507,7 +508,7 @@ fn stiffer_gains_on_a_mode_switch_keep_the_force_and_inject_nothing() {
     for n in 0..2000u64 {
         vpr.received_cycle = c.servo.cycle();
         vpr.seq = n as u32;
-        c.run(&line, &push, &cfg, Some(&vpr), ServoMode::Main);
+        c.run(&line, &push, &cfg, Some(&vpr), Mode::Main);
         min_e = min_e.min(c.servo.controller().po_energy().to_f64());
     }
     assert!(min_e > -1e-6, "{min_e}");

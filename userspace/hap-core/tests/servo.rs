@@ -7,8 +7,9 @@ use hap_core::config::{CommandType, ServoConfig};
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Pose, Quat, Vec3, Wrench, JOINTS_ZERO};
 use hap_core::io::MotorLine;
+use hap_core::mode::Mode;
 use hap_core::position_log::{LogDecodeError, LogRecord};
-use hap_core::servo::{PowerRequest, Servo, ServoInputs, ServoMode, StandaloneServo};
+use hap_core::servo::{PowerRequest, Servo, ServoInputs, StandaloneServo};
 use hap_core::simulator::Simulator;
 use hap_core::vp::{alarm, status, VpReceived};
 
@@ -61,7 +62,7 @@ fn power_off_the_arm_moves_only_under_gravity_and_the_user() {
     let cfg = impedance_cfg();
     let vpr = far_vpr();
     for n in 0..2000u64 {
-        let vp = *s.step(&ServoInputs::default(), &cfg, &vpr, ServoMode::Main);
+        let vp = *s.step(&ServoInputs::default(), &cfg, &vpr, Mode::Main);
         assert_eq!(
             vp.status & (status::POWER_ON | status::MOTORS_ENABLED | status::COUPLED),
             0
@@ -84,7 +85,7 @@ fn power_off_the_arm_moves_only_under_gravity_and_the_user() {
     // Left alone, the unpowered arm stays at rest (shoulder on its stop).
     let mut s = StandaloneServo::new(PERIOD_NS);
     for _ in 0..2000 {
-        s.step(&ServoInputs::default(), &cfg, &vpr, ServoMode::Main);
+        s.step(&ServoInputs::default(), &cfg, &vpr, Mode::Main);
     }
     for (a, b) in s.simulator().q.iter().zip(arm::REST_Q.iter()) {
         assert!(
@@ -100,7 +101,7 @@ fn power_on_enables_commands_and_power_off_inhibits_them() {
     let mut s = StandaloneServo::new(PERIOD_NS);
     let cfg = ServoConfig::default();
     let vpr = VpReceived::default();
-    let vp = *s.step(&ServoInputs::default(), &cfg, &vpr, ServoMode::Main);
+    let vp = *s.step(&ServoInputs::default(), &cfg, &vpr, Mode::Main);
     assert_eq!(vp.status & status::MOTORS_ENABLED, 0);
     let vp = *s.step(
         &ServoInputs {
@@ -109,7 +110,7 @@ fn power_on_enables_commands_and_power_off_inhibits_them() {
         },
         &cfg,
         &vpr,
-        ServoMode::Main,
+        Mode::Main,
     );
     assert_ne!(vp.status & status::POWER_ON, 0);
     assert_ne!(vp.status & status::MOTORS_ENABLED, 0);
@@ -122,7 +123,7 @@ fn power_on_enables_commands_and_power_off_inhibits_them() {
         },
         &cfg,
         &vpr,
-        ServoMode::Main,
+        Mode::Main,
     );
     assert_eq!(vp.status & (status::POWER_ON | status::MOTORS_ENABLED), 0);
     assert_eq!(s.log_record().motor_torque, JOINTS_ZERO);
@@ -141,7 +142,7 @@ fn fail_safe_inhibits_for_good() {
         },
         &cfg,
         &vpr,
-        ServoMode::Main,
+        Mode::Main,
     );
     assert_ne!(s.line.applied(), JOINTS_ZERO);
     s.line.fail_safe_inhibit();
@@ -155,7 +156,7 @@ fn fail_safe_inhibits_for_good() {
         },
         &cfg,
         &vpr,
-        ServoMode::Main,
+        Mode::Main,
     );
     assert_eq!(vp.status & (status::POWER_ON | status::MOTORS_ENABLED), 0);
     assert_ne!(vp.alarms & alarm::FAIL_SAFE, 0);
@@ -169,7 +170,7 @@ fn fail_safe_inhibits_for_good() {
         },
         &cfg,
         &vpr,
-        ServoMode::Main,
+        Mode::Main,
     );
     assert_ne!(vp.status & status::MOTORS_ENABLED, 0);
 }
@@ -190,7 +191,7 @@ fn degraded_mode_couples_with_the_same_gains_and_is_flagged() {
         power_request: PowerRequest::On,
         live_effort: held,
     };
-    let vp = *s.step(&on, &cfg, &vpr, ServoMode::Main);
+    let vp = *s.step(&on, &cfg, &vpr, Mode::Main);
     assert_ne!(vp.status & status::COUPLED, 0);
     let mut inputs = on;
     inputs.power_request = PowerRequest::None;
@@ -202,8 +203,8 @@ fn degraded_mode_couples_with_the_same_gains_and_is_flagged() {
     near.pose = vp.handle_pose;
     near.pose.position.x = near.pose.position.x.add_sat(Fx::from_ratio(3, 1000));
     let mut main = s.clone();
-    let vp_main = *main.step(&inputs, &cfg, &near, ServoMode::Main);
-    let vp_deg = *s.step(&inputs, &cfg, &near, ServoMode::Degraded);
+    let vp_main = *main.step(&inputs, &cfg, &near, Mode::Main);
+    let vp_deg = *s.step(&inputs, &cfg, &near, Mode::Degraded);
     assert_ne!(vp_deg.status & status::DEGRADED, 0);
     assert_ne!(vp_deg.status & status::COUPLED, 0);
     let f = |w: Wrench| {
@@ -218,7 +219,7 @@ fn degraded_mode_couples_with_the_same_gains_and_is_flagged() {
     assert_eq!(vp_main.coupling_wrench, vp_deg.coupling_wrench);
     assert!(fd > 0.1);
     for _ in 0..500 {
-        let vp = *s.step(&inputs, &cfg, &vpr, ServoMode::Degraded);
+        let vp = *s.step(&inputs, &cfg, &vpr, Mode::Degraded);
         assert_ne!(vp.status & status::DEGRADED, 0);
         assert_ne!(vp.status & status::COUPLED, 0);
     }
@@ -251,9 +252,9 @@ fn scripted_run() -> Vec<[u8; LogRecord::SIZE]> {
             PowerRequest::None
         };
         let mode = if n % 500 == 499 {
-            ServoMode::Degraded
+            Mode::Degraded
         } else {
-            ServoMode::Main
+            Mode::Main
         };
         s.step(
             &ServoInputs {
@@ -296,7 +297,7 @@ fn log_record_round_trip_and_errors() {
             },
             &impedance_cfg(),
             &far_vpr(),
-            ServoMode::Main,
+            Mode::Main,
         );
     }
     let r = *s.log_record();
@@ -316,7 +317,7 @@ fn log_record_round_trip_and_errors() {
 /// back; a bad mode byte is refused.
 #[test]
 fn log_record_v2_layout_matches_its_documentation() {
-    use hap_core::position_log::{LogMode, LogTiming};
+    use hap_core::position_log::LogTiming;
     let f = |k: i64| Fx(k.wrapping_mul(0x0101_0101_0101) ^ 0x5a);
     let v3 = |k: i64| Vec3::new(f(k), f(k + 1), f(k + 2));
     let j6 = |k: i64| [f(k), f(k + 1), f(k + 2), f(k + 3), f(k + 4), f(k + 5)];
@@ -324,7 +325,7 @@ fn log_record_v2_layout_matches_its_documentation() {
         flags: 0x7f,
         cycle: 0x0102_0304_0506_0708,
         time_us: 0x1112_1314_1516_1718,
-        mode: LogMode::FailSafe,
+        mode: Mode::FailSafe,
         fail_safe_step: 4,
         vpr_age_cycles: 0x2122_2324,
         q: j6(10),
@@ -404,11 +405,7 @@ fn log_record_carries_command_applied_vpr_and_mode() {
     s.load_effort_text(SCRIPT).unwrap();
     let vpr = far_vpr();
     for n in 0..400 {
-        let mode = if n == 399 {
-            ServoMode::Degraded
-        } else {
-            ServoMode::Main
-        };
+        let mode = if n == 399 { Mode::Degraded } else { Mode::Main };
         s.step(
             &ServoInputs {
                 power_request: if n == 0 {
@@ -424,7 +421,7 @@ fn log_record_carries_command_applied_vpr_and_mode() {
         );
     }
     let r = *s.log_record();
-    assert_eq!(r.mode, hap_core::position_log::LogMode::Degraded);
+    assert_eq!(r.mode, hap_core::mode::Mode::Degraded);
     assert_eq!(r.cycle, 399);
     assert_eq!(r.time_us, 399 * u64::from(PERIOD_NS / 1000));
     assert_eq!(r.vpr_position, vpr.pose.position);
@@ -433,4 +430,35 @@ fn log_record_carries_command_applied_vpr_and_mode() {
         assert!(a.abs() <= *l);
     }
     assert!(r.coupling_force.norm() > Fx::ZERO);
+}
+
+/// A step asked in `Mode::FailSafe` (the supervisor never starts one) runs
+/// the degraded path: the same record, answer and state as a degraded step.
+#[test]
+fn a_step_in_fail_safe_runs_the_degraded_path() {
+    let run = |last: Mode| {
+        let mut s = StandaloneServo::new(PERIOD_NS);
+        s.load_effort_text(SCRIPT).unwrap();
+        let vpr = far_vpr();
+        for n in 0..300 {
+            let mode = if n >= 290 { last } else { Mode::Main };
+            let power_request = if n == 0 {
+                PowerRequest::On
+            } else {
+                PowerRequest::None
+            };
+            let inputs = ServoInputs {
+                power_request,
+                live_effort: None,
+            };
+            s.step(&inputs, &impedance_cfg(), &vpr, mode);
+        }
+        (*s.log_record(), *s.vp(), format!("{:?}", *s))
+    };
+    let (degraded, fail_safe) = (run(Mode::Degraded), run(Mode::FailSafe));
+    assert_eq!(fail_safe.0.mode, Mode::Degraded);
+    assert_eq!(fail_safe.0, degraded.0);
+    assert_eq!(fail_safe.1, degraded.1);
+    assert_eq!(fail_safe.2, degraded.2);
+    assert_ne!(run(Mode::Main).0, degraded.0, "the paths differ");
 }

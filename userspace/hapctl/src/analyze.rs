@@ -33,7 +33,8 @@ use std::path::{Path, PathBuf};
 
 use hap_core::arm::TAU_MAX;
 use hap_core::control::{BRAKE_START, MAX_FORCE};
-use hap_core::position_log::{LogMode, LogRecord};
+use hap_core::mode::Mode;
+use hap_core::position_log::LogRecord;
 use hap_core::servo::log_flags;
 use hap_core::stats::{histogram_entries, key_values, parse_summary, StatsSummary, HIST_SERIES};
 use hap_core::vp::status;
@@ -214,7 +215,7 @@ pub fn run(log: &Path, out: &Path, inputs: &Inputs<'_>) -> Result<(), String> {
 /// The period from the log itself (time_us / cycle), 1000 µs if unknown.
 fn period_from_log(recs: &[LogRecord]) -> u32 {
     recs.iter()
-        .filter(|r| r.mode != LogMode::FailSafe && r.cycle > 0)
+        .filter(|r| r.mode != Mode::FailSafe && r.cycle > 0)
         .map(|r| r.time_us / r.cycle)
         .find(|p| *p > 0)
         .and_then(|p| u32::try_from(p).ok())
@@ -332,7 +333,7 @@ impl<'a> Run<'a> {
     pub fn new(all: &'a [LogRecord], period_us: u32, undecodable: usize) -> Run<'a> {
         let period_s = f64::from(period_us.max(1)) * 1e-6;
         let continuity = Continuity::of(all);
-        let recs: Vec<&LogRecord> = all.iter().filter(|r| r.mode != LogMode::FailSafe).collect();
+        let recs: Vec<&LogRecord> = all.iter().filter(|r| r.mode != Mode::FailSafe).collect();
         let t_of = |c: u64| c as f64 * period_s;
         let t: Vec<f64> = recs.iter().map(|r| t_of(r.cycle)).collect();
         let timed = recs.iter().any(|r| r.timing.tick != 0);
@@ -377,8 +378,8 @@ impl<'a> Run<'a> {
             if !fading && fading_was {
                 ev(c, EventKind::LinkRestored, 0);
             }
-            let deg = r.mode == LogMode::Degraded;
-            let deg_was = p.is_some_and(|p| p.mode == LogMode::Degraded);
+            let deg = r.mode == Mode::Degraded;
+            let deg_was = p.is_some_and(|p| p.mode == Mode::Degraded);
             if deg && !deg_was {
                 ev(c, EventKind::DegradedEnter, 0);
             }
@@ -415,7 +416,7 @@ impl<'a> Run<'a> {
         let mut last: Option<&LogRecord> = None;
         let mut fail_safe = Vec::new();
         for r in all {
-            if r.mode != LogMode::FailSafe {
+            if r.mode != Mode::FailSafe {
                 last = Some(r);
                 continue;
             }
@@ -755,7 +756,7 @@ impl<'a> Run<'a> {
             (2, |r| {
                 has(r.status, status::LINK_FADING) && r.vpr_age_cycles != LogRecord::NO_VPR
             }),
-            (3, |r| r.mode == LogMode::Degraded),
+            (3, |r| r.mode == Mode::Degraded),
         ];
         // Dropped records: the span they covered.
         for e in self.events.iter().filter(|e| e.kind == EventKind::Dropped) {
@@ -876,7 +877,7 @@ impl<'a> Run<'a> {
             "degraded_cycles: {}",
             self.recs
                 .iter()
-                .filter(|r| r.mode == LogMode::Degraded)
+                .filter(|r| r.mode == Mode::Degraded)
                 .count()
         );
         if self.timed {
@@ -1627,7 +1628,7 @@ mod tests {
                 r.status |= status::LINK_FADING;
             }
             if (400..410).contains(&c) {
-                r.mode = LogMode::Degraded;
+                r.mode = Mode::Degraded;
                 r.alarms |= alarm::DEADLINE_MISS;
             }
             // A force peak of 19 N next to a user force of 3 mN.
@@ -1647,7 +1648,7 @@ mod tests {
         let last = *v.last().unwrap();
         for step in 1..=5u8 {
             let mut r = last;
-            r.mode = LogMode::FailSafe;
+            r.mode = Mode::FailSafe;
             r.fail_safe_step = step;
             r.timing.tick = last.timing.tick + 1;
             v.push(r);
@@ -1794,14 +1795,14 @@ mod tests {
         let mut recs = scripted();
         let last_tick = recs
             .iter()
-            .filter(|r| r.mode != LogMode::FailSafe)
+            .filter(|r| r.mode != Mode::FailSafe)
             .map(|r| r.timing.tick)
             .max()
             .unwrap();
-        for r in recs.iter_mut().filter(|r| r.mode == LogMode::FailSafe) {
+        for r in recs.iter_mut().filter(|r| r.mode == Mode::FailSafe) {
             let step = r.fail_safe_step;
             *r = LogRecord::ZERO;
-            r.mode = LogMode::FailSafe;
+            r.mode = Mode::FailSafe;
             r.fail_safe_step = step;
             r.flags = POSE_UNKNOWN;
             r.timing.tick = last_tick + u64::from(step);
@@ -1854,7 +1855,7 @@ mod tests {
         // A log holding only such steps still places them by their tick.
         let only: Vec<LogRecord> = recs
             .iter()
-            .filter(|r| r.mode == LogMode::FailSafe)
+            .filter(|r| r.mode == Mode::FailSafe)
             .copied()
             .collect();
         let run = Run::new(&only, PERIOD_US, 0);

@@ -7,7 +7,8 @@ use std::io::{BufWriter, Read, Write};
 use std::path::Path;
 
 use hap_core::effort::{parse_effort_sequence, parse_milli, EffortKeyframe, EFFORT_CAPACITY};
-use hap_core::position_log::{LogMode, LogRecord};
+use hap_core::mode::Mode;
+use hap_core::position_log::LogRecord;
 
 /// Validate an effort sequence; returns a one-line summary.
 pub fn validate_effort(text: &str) -> Result<String, String> {
@@ -54,7 +55,7 @@ pub const CSV_HEADER: &str = "cycle,time_us,mode,fail_safe_step,flags,status,ala
 /// fields (cycle, time, pose, speeds, forces, commanded torques) are
 /// unknown, not zero.
 pub fn pose_unknown(r: &LogRecord) -> bool {
-    r.mode == LogMode::FailSafe && r.flags & hap_core::servo::log_flags::POSE_UNKNOWN != 0
+    r.mode == Mode::FailSafe && r.flags & hap_core::servo::log_flags::POSE_UNKNOWN != 0
 }
 
 /// One CSV line of a record; the fields of a [`pose_unknown`] record that
@@ -124,7 +125,7 @@ impl Continuity {
     /// Account for the next record.
     pub fn add(&mut self, r: &LogRecord) {
         self.records = self.records.saturating_add(1);
-        if r.mode == LogMode::FailSafe {
+        if r.mode == Mode::FailSafe {
             self.fail_safe = self.fail_safe.saturating_add(1);
             if pose_unknown(r) {
                 self.pose_unknown = self.pose_unknown.saturating_add(1);
@@ -318,7 +319,7 @@ mod tests {
     #[test]
     fn unknown_pose_is_not_written_as_zero() {
         let mut r = LogRecord::ZERO;
-        r.mode = LogMode::FailSafe;
+        r.mode = Mode::FailSafe;
         r.fail_safe_step = 1;
         r.flags = hap_core::servo::log_flags::POSE_UNKNOWN;
         r.timing.tick = 77;

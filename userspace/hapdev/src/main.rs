@@ -19,12 +19,13 @@ use hap_core::{
     config::CommandType,
     cycle::ServoCycle,
     fixed::{Fx, Pose, Twist, Vec3},
+    mode::Mode,
     position_log::LogRecord,
     protocol::{
         decode, encode, Frame, FrameHeader, FrameType, CTRL_ACK_REQUEST, MAGIC, MAX_FRAME_LEN,
         VERSION,
     },
-    servo::{PowerRequest, ServoInputs, ServoMode},
+    servo::{PowerRequest, ServoInputs},
 };
 use std::{
     fs::{File, OpenOptions},
@@ -583,8 +584,7 @@ impl CutSummary {
             }
             if s.first_cut_cycle.is_some() {
                 s.records_from_cut += 1;
-                s.servo_records_from_cut +=
-                    usize::from(r.mode != hap_core::position_log::LogMode::FailSafe);
+                s.servo_records_from_cut += usize::from(r.mode != hap_core::mode::Mode::FailSafe);
                 s.torque_nonzero_from_cut += usize::from(nonzero);
                 s.unflagged_after_cut += usize::from(!cut);
             } else {
@@ -647,7 +647,7 @@ fn cmd_replay(effort: &str, load_cycle: u64, guest: &str, period_us: u32) -> Res
                 )
             })?;
         }
-        c.run(&line, &inputs, &config, Some(&invalid), ServoMode::Main);
+        c.run(&line, &inputs, &config, Some(&invalid), Mode::Main);
         let mut rec = [0u8; LogRecord::SIZE];
         c.servo.log_record().encode(&mut rec);
         let cyc = c.servo.log_record().cycle;
@@ -758,7 +758,7 @@ mod cut_summary_tests {
     fn step_rec() -> LogRecord {
         LogRecord {
             flags: LINE_CUT,
-            mode: hap_core::position_log::LogMode::FailSafe,
+            mode: hap_core::mode::Mode::FailSafe,
             ..LogRecord::ZERO
         }
     }
@@ -808,7 +808,7 @@ mod replay_tests {
             // The module's proto try-lock fails now and then: no VPr copy.
             let vpr = hap_core::vp::VpReceived::default();
             let shared = if n % 7 == 3 { None } else { Some(&vpr) };
-            c.run(&line, &inputs, &config, shared, ServoMode::Main);
+            c.run(&line, &inputs, &config, shared, Mode::Main);
             let mut r = *c.servo.log_record();
             r.timing = LogTiming {
                 tick: n + 1,

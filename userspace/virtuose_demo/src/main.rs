@@ -15,7 +15,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use clap::Parser;
-use physics::{World, V3};
+use physics::{Bimanual, World, V3};
 use virtuose_api::fake_peer::{FakePeer, FakePeerConfig};
 use virtuose_api::{CommandType, IndexingMode, Options, VirtContext};
 
@@ -27,6 +27,11 @@ struct Args {
     /// in-process fake controller (no kernel needed).
     #[arg(long, default_value = "127.0.0.1#5000")]
     server: String,
+    /// A second arm's address ("host#port", e.g. a controller's arm 1 on
+    /// 5001, or "fake"): the bimanual scene, two hands (one per arm) and one
+    /// object to hold between them, shown in the terminal (no web page).
+    #[arg(long, value_name = "ADDR")]
+    server2: Option<String>,
     /// Terminal summary only (no web page).
     #[arg(long)]
     headless: bool,
@@ -261,21 +266,32 @@ fn a3(v: &V3) -> [f64; 3] {
 }
 
 fn init(vc: &mut VirtContext, dt: f32, mass: f32) -> Result<(), virtuose_api::VirtError> {
+    init_at(vc, dt, mass, [0.0; 3])
+}
+
+/// [`init`] with the resting handle put at `at` in the scene.
+fn init_at(
+    vc: &mut VirtContext,
+    dt: f32,
+    mass: f32,
+    at: [f32; 3],
+) -> Result<(), virtuose_api::VirtError> {
     let identity = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
-    // References: the scene's origin is where the handle rests when the
-    // client connects (the arm's base may be anywhere in the room). Only a
-    // translation: the scene's "down" stays the arm's "down".
+    // References: the scene's origin (or `at`) is where the handle rests
+    // when the client connects (the arm's base may be anywhere in the
+    // room). Only a translation: the scene's "down" stays the arm's "down".
     let t_wait = Instant::now();
     while vc.get_position().is_err() && t_wait.elapsed() < Duration::from_secs(2) {
         vc.wait_answer(Duration::from_millis(5));
     }
     let base = match vc.get_position() {
-        Ok(h) => [-h[0], -h[1], -h[2], 0.0, 0.0, 0.0, 1.0],
-        Err(_) => identity,
+        Ok(h) => [at[0] - h[0], at[1] - h[1], at[2] - h[2], 0.0, 0.0, 0.0, 1.0],
+        // No answer yet: the handle taken at the arm's origin.
+        Err(_) => [at[0], at[1], at[2], 0.0, 0.0, 0.0, 1.0],
     };
     println!(
-        "init: references (base frame: translation {:.3},{:.3},{:.3} puts the resting handle at the scene origin; observation frame = identity)",
-        base[0], base[1], base[2]
+        "init: references (base frame: translation {:.3},{:.3},{:.3} puts the resting handle at the scene's ({:.3},{:.3},{:.3}); observation frame = identity)",
+        base[0], base[1], base[2], at[0], at[1], at[2]
     );
     vc.set_base_frame(&base)?;
     vc.set_observation_frame(&identity)?;
@@ -329,6 +345,9 @@ fn run(args: Args) -> Result<(), String> {
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, stop.clone()).map_err(|e| format!("signals: {e}"))?;
+    }
+    if let Some(server2) = args.server2.clone() {
+        return run_bimanual(&args, &server2, &stop);
     }
     let _fake; // keeps the fake controller alive
     let server = if args.server == "fake" {
@@ -735,6 +754,221 @@ fn run(args: Args) -> Result<(), String> {
             }
         }
     }
+    if silent {
+        return Err("the controller stopped answering (no answer for 5 s)".into());
+    }
+    Ok(())
+}
+
+/// The two arms' hands rest here in the scene: 17 cm apart, the object on
+/// the floor between them.
+const HANDS_AT: [[f32; 3]; 2] = [[-0.085, 0.0, -0.07], [0.085, 0.0, -0.07]];
+
+/// An arm of the bimanual scene: its context and link bookkeeping.
+struct Hand {
+    vc: VirtContext,
+    force: V3,
+    handle: V3,
+    handle_q: [f32; 4],
+    requests: u64,
+    answers0: u64,
+    last_answers: u64,
+    last_answer_t: f64,
+}
+
+/// Open arm `i`'s context at `addr` ("fake": an in-process fake controller
+/// whose handle squeezes in and rises, then parts and sinks, every 4 s).
+fn open_hand(
+    i: usize,
+    addr: &str,
+    args: &Args,
+    dt: f64,
+    fakes: &mut Vec<FakePeer>,
+) -> Result<Hand, String> {
+    let server = if addr == "fake" {
+        let inward = if i == 0 { 0.03 } else { -0.03 };
+        // The fake applies no base frame: its handle rests at the hand's
+        // place in the scene.
+        let p = FakePeer::start(FakePeerConfig {
+            center: HANDS_AT[i].map(f64::from),
+            amplitude: [inward, 0.0, 0.03],
+            freq_hz: 0.25,
+            ..Default::default()
+        })
+        .map_err(|e| format!("fake controller: {e}"))?;
+        let a = p.address();
+        println!("arm {i}: fake controller on {a}");
+        fakes.push(p);
+        a
+    } else {
+        addr.to_string()
+    };
+    let key = match &args.key {
+        Some(p) => {
+            Some(virtuose_api::Psk::load(p).map_err(|e| format!("key {}: {e}", p.display()))?)
+        }
+        None => None,
+    };
+    let opts = Options {
+        reply_timeout: Duration::from_millis(args.timeout_ms),
+        attempts: 4,
+        key,
+    };
+    println!("arm {i}: connecting to {server}");
+    let mut vc = VirtContext::open_with(&server, opts).map_err(|e| format!("{server}: {e}"))?;
+    init_at(&mut vc, dt as f32, 0.5, HANDS_AT[i])
+        .map_err(|e| format!("arm {i}: initialisation: {e}"))?;
+    fresh_answer(&vc, Duration::from_secs(2));
+    let answers0 = vc.link_stats().answers;
+    Ok(Hand {
+        vc,
+        force: V3::zeros(),
+        handle: V3::new(
+            f64::from(HANDS_AT[i][0]),
+            f64::from(HANDS_AT[i][1]),
+            f64::from(HANDS_AT[i][2]),
+        ),
+        handle_q: [0.0, 0.0, 0.0, 1.0],
+        requests: 0,
+        answers0,
+        last_answers: answers0,
+        last_answer_t: 0.0,
+    })
+}
+
+/// The bimanual scene: each arm couples its hand; the object is held when
+/// both hands grip it off the floor.
+fn run_bimanual(args: &Args, server2: &str, stop: &AtomicBool) -> Result<(), String> {
+    if !args.headless {
+        println!("bimanual scene: terminal only (the web page shows the one-arm scene)");
+    }
+    let dt = match args.interval_us {
+        Some(us) => us as f64 / 1e6,
+        None => 1.0 / args.rate as f64,
+    };
+    let mut fakes = Vec::new();
+    let mut hands = [
+        open_hand(0, &args.server, args, dt, &mut fakes)?,
+        open_hand(1, server2, args, dt, &mut fakes)?,
+    ];
+    let at = |i: usize| {
+        let h = &hands[i].vc;
+        match h.get_position() {
+            Ok(p) => V3::new(p[0] as f64, p[1] as f64, p[2] as f64),
+            Err(_) => V3::new(
+                f64::from(HANDS_AT[i][0]),
+                f64::from(HANDS_AT[i][1]),
+                f64::from(HANDS_AT[i][2]),
+            ),
+        }
+    };
+    let mut scene = Bimanual::new([at(0), at(1)]);
+    let t0 = Instant::now();
+    let period = Duration::from_secs_f64(dt);
+    let mut next = t0 + period;
+    let (mut last_print, mut max_lift, mut held_cycles, mut cycles) = (0.0f64, 0.0f64, 0u64, 0u64);
+    let mut silent = false;
+    loop {
+        let t = t0.elapsed().as_secs_f64();
+        if stop.load(Ordering::Relaxed)
+            || (args.duration > 0.0 && t >= args.duration)
+            || (args.max_duration > 0.0 && t >= args.max_duration)
+        {
+            break;
+        }
+        let mut coupling = [V3::zeros(); 2];
+        for (h, c) in hands.iter_mut().zip(coupling.iter_mut()) {
+            if let (Ok(p), Ok(f)) = (h.vc.get_position(), h.vc.get_force()) {
+                h.handle = V3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                h.handle_q = [p[3], p[4], p[5], p[6]];
+                h.force = V3::new(f[0] as f64, f[1] as f64, f[2] as f64);
+            }
+            let answers = h.vc.link_stats().answers;
+            if answers != h.last_answers {
+                (h.last_answers, h.last_answer_t) = (answers, t);
+            }
+            // As in the one-arm scene: a force older than 100 ms is not
+            // applied (a delayed spring is not passive).
+            let age = h.vc.link_stats().rtt_ms_last / 1000.0 + (t - h.last_answer_t);
+            *c = if age <= 0.1 { h.force } else { V3::zeros() };
+        }
+        if hands.iter().any(|h| t - h.last_answer_t > 5.0) {
+            println!("no answer for 5 s from an arm: the controller stopped answering");
+            silent = true;
+            break;
+        }
+        scene.step(dt, coupling);
+        cycles += 1;
+        max_lift = max_lift.max(scene.lift());
+        held_cycles += u64::from(scene.held());
+        for (h, s) in hands.iter_mut().zip(scene.hands.iter()) {
+            let _ = h.vc.set_speed(&[
+                s.vel.x as f32,
+                s.vel.y as f32,
+                s.vel.z as f32,
+                0.0,
+                0.0,
+                0.0,
+            ]);
+            let ahead = h
+                .requests
+                .saturating_sub(h.vc.link_stats().answers.saturating_sub(h.answers0));
+            if args.window == 0 || ahead < args.window {
+                let q = h.handle_q;
+                let _ = h.vc.set_position(&[
+                    s.pos.x as f32,
+                    s.pos.y as f32,
+                    s.pos.z as f32,
+                    q[0],
+                    q[1],
+                    q[2],
+                    q[3],
+                ]);
+                h.requests += 1;
+            }
+        }
+        if t - last_print >= 1.0 {
+            last_print = t;
+            let [l, r] = &scene.hands;
+            let o = &scene.object;
+            println!(
+                "t={:6.1}s hands=({:+.4},{:+.4},{:+.4}) ({:+.4},{:+.4},{:+.4}) object=({:+.4},{:+.4},{:+.4}) lift={:.1}mm {}",
+                t, l.pos.x, l.pos.y, l.pos.z, r.pos.x, r.pos.y, r.pos.z, o.pos.x, o.pos.y, o.pos.z,
+                scene.lift() * 1000.0,
+                if scene.held() { "held" } else { "-" }
+            );
+            let _ = std::io::stdout().flush();
+        }
+        let now = Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+            next += period;
+        } else {
+            next = now + period;
+        }
+    }
+    let dur = t0.elapsed().as_secs_f64();
+    let mut summary = String::new();
+    let _ = writeln!(summary, "scene: bimanual");
+    let _ = writeln!(summary, "duration_s: {dur:.3}");
+    let _ = writeln!(summary, "cycles: {cycles}");
+    for (i, h) in hands.iter_mut().enumerate() {
+        let ls = h.vc.link_stats();
+        let _ = writeln!(summary, "arm{i}_answers: {}", ls.answers);
+        let _ = writeln!(summary, "arm{i}_loss_ratio: {:.6}", ls.loss_ratio);
+        let _ = h.vc.set_power_on(false);
+        let _ = h.vc.close();
+    }
+    let _ = writeln!(summary, "object_max_lift_m: {max_lift:.5}");
+    let _ = writeln!(summary, "held_cycles: {held_cycles}");
+    let _ = writeln!(summary, "controller_silent: {}", u8::from(silent));
+    print!("summary:\n{summary}");
+    if let Some(dir) = &args.results {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        std::fs::write(dir.join("summary.txt"), &summary)
+            .map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    drop(fakes);
     if silent {
         return Err("the controller stopped answering (no answer for 5 s)".into());
     }

@@ -14,8 +14,9 @@ use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Joints, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
 use hap_core::io::MotorLine;
+use hap_core::mode::Mode;
 use hap_core::proto_synchro::LINK_FADE_START_US;
-use hap_core::servo::{log_flags, PowerRequest, ServoInputs, ServoMode};
+use hap_core::servo::{log_flags, PowerRequest, ServoInputs};
 use hap_core::vp::VpReceived;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -266,7 +267,7 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
     let mut in_loss = false;
     let mut loss_unfaded = false;
     let mut resume_k: Option<u64> = None;
-    let mut prev_mode = ServoMode::Main;
+    let mut prev_mode = Mode::Main;
     let mut prev_gains = c.servo.controller().effective_gains();
     let cut_at = if rng.gen_bool(0.5) {
         Some(cycles.saturating_sub(rng.gen_range(50..400)))
@@ -453,12 +454,12 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         mode = if degraded_left > 0 {
             degraded_left -= 1;
             if rng.gen_bool(0.2) {
-                ServoMode::Main
+                Mode::Main
             } else {
-                ServoMode::Degraded
+                Mode::Degraded
             }
         } else {
-            ServoMode::Main
+            Mode::Main
         };
         let now = c.servo.cycle();
         let mut busy = false;
