@@ -286,7 +286,7 @@ fn power_on_next_to_the_object_steps_the_force_by_at_most_2_n_per_1_ms_cycle() {
             &hand([0.0; 3], power),
             &rig.cfg,
             Some(&rig.vpr),
-            ServoMode::Main,
+            Mode::Main,
         );
         let f = rig.c.servo.control_output().handle_wrench.force.to_f64();
         // The switch-off itself is a cut (0 at once, by design).
