@@ -371,7 +371,10 @@ pub enum TraceEvent {
         sent_ns: u64,
     },
     /// The socket refused it.
-    SendError { copy: bool, due_ns: u64 },
+    SendError {
+        copy: bool,
+        due_ns: u64,
+    },
 }
 
 /// The trace's first line.

@@ -24,7 +24,7 @@ use hap_netem::{
 /// hapticctrl link emulator: a UDP proxy with delay, jitter, reordering,
 /// loss and duplication.
 #[derive(Parser, Debug)]
-#[command(name = "hap-netem", version)]
+#[command(name = "hap-netem", version, allow_negative_numbers = true)]
 struct Args {
     /// Address the clients send to.
     #[arg(long, default_value = "127.0.0.1:0")]
@@ -250,7 +250,10 @@ impl Proxy {
         s.push_str(&self.settings);
         s.push_str(&format!("upstream: {}\n", self.upstream));
         s.push_str(&format!("uptime_ms: {}\n", self.now_ns() / 1_000_000));
-        s.push_str(&format!("clients: {}\n", self.clients.load(Ordering::Relaxed)));
+        s.push_str(&format!(
+            "clients: {}\n",
+            self.clients.load(Ordering::Relaxed)
+        ));
         s.push_str(&format!(
             "clients_refused: {}\n",
             self.clients_refused.load(Ordering::Relaxed)
@@ -351,7 +354,11 @@ fn main() -> ExitCode {
 }
 
 fn run(args: Args) -> Result<(), String> {
-    let both_ms = args.rtt_ms.map(|r| r / 2.0).or(args.delay_ms).unwrap_or(0.0);
+    let both_ms = args
+        .rtt_ms
+        .map(|r| r / 2.0)
+        .or(args.delay_ms)
+        .unwrap_or(0.0);
     let to_us = |ms: f64| (ms * 1000.0).round() as u64;
     let imp = |ms: Option<f64>| Impairment {
         delay_us: to_us(ms.unwrap_or(both_ms)),
@@ -374,7 +381,8 @@ fn run(args: Args) -> Result<(), String> {
     signal_hook::flag::register(signal_hook::consts::SIGUSR1, usr1.clone())
         .map_err(|e| format!("signals: {e}"))?;
 
-    let listen = UdpSocket::bind(args.listen).map_err(|e| format!("--listen {}: {e}", args.listen))?;
+    let listen =
+        UdpSocket::bind(args.listen).map_err(|e| format!("--listen {}: {e}", args.listen))?;
     listen
         .set_read_timeout(Some(Duration::from_millis(50)))
         .map_err(|e| format!("socket: {e}"))?;
@@ -434,9 +442,8 @@ fn run(args: Args) -> Result<(), String> {
     let _ = std::io::stdout().flush();
 
     let t0 = Instant::now();
-    while !stop_signal.load(Ordering::Relaxed)
-        && !(args.duration > 0.0 && t0.elapsed().as_secs_f64() >= args.duration)
-    {
+    let timed_out = || args.duration > 0.0 && t0.elapsed().as_secs_f64() >= args.duration;
+    while !stop_signal.load(Ordering::Relaxed) && !timed_out() {
         if usr1.swap(false, Ordering::Relaxed) {
             write_stats(&args.stats, &proxy.render_stats());
         }
