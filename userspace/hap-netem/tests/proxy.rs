@@ -21,11 +21,14 @@ fn tmp(name: &str) -> PathBuf {
     d.join(name)
 }
 
+/// Datagrams as (source, bytes), in arrival order.
+type Received = Arc<Mutex<Vec<(SocketAddr, Vec<u8>)>>>;
+
 /// A test bridge: records every datagram (source, bytes) and optionally
 /// echoes it back.
 struct Bridge {
     addr: SocketAddr,
-    got: Arc<Mutex<Vec<(SocketAddr, Vec<u8>)>>>,
+    got: Received,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -35,7 +38,7 @@ impl Bridge {
         let s = UdpSocket::bind("127.0.0.1:0").unwrap();
         s.set_read_timeout(Some(Duration::from_millis(20))).unwrap();
         let addr = s.local_addr().unwrap();
-        let got = Arc::new(Mutex::new(Vec::new()));
+        let got: Received = Arc::new(Mutex::new(Vec::new()));
         let stop = Arc::new(AtomicBool::new(false));
         let (g, st) = (got.clone(), stop.clone());
         let thread = std::thread::spawn(move || {
