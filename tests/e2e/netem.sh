@@ -19,12 +19,13 @@
 # left uncoupled. Then "e2e-netem: N passed, N failed".
 #   tests/e2e/netem.sh [--stock] [--rtt-ms MS] [--jitter-pct P] [--loss-pct P]
 #                      [--dup-pct P] [--reorder-pct P] [--seed N] [--duration S]
-#                      [--min-answers N] [--period-us N] [--results DIR]
+#                      [--min-answers N] [--period-us N] [--client-window N] [--results DIR]
 # Defaults: --rtt-ms 300 --jitter-pct 50 --loss-pct 10 (the slow link).
+# --client-window: the client's VPr pacing (virtuose_demo --window; 0: none).
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 . "$ROOT/scripts/lib.sh"
-rtt_ms=300; jitter=50; loss=10; dup=0; reorder=0; seed=1
+rtt_ms=300; jitter=50; loss=10; dup=0; reorder=0; seed=1; window=4
 duration=15; min_answers=3000; period_us=1000; results="$ROOT/build/e2e-netem"; kflag=""
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -34,6 +35,7 @@ while [ $# -gt 0 ]; do
     --dup-pct) dup=$2; shift ;;
     --reorder-pct) reorder=$2; shift ;;
     --seed) seed=$2; shift ;;
+    --client-window) window=$2; shift ;;
     --duration) duration=$2; shift ;;
     --min-answers) min_answers=$2; shift ;;
     --period-us) period_us=$2; shift ;;
@@ -84,7 +86,7 @@ echo "# $(head -1 "$results/netem.out")"
 # The reply timeout of acknowledged requests covers the slowest round trip
 # the proxy can make (rtt + jitter), with margin.
 tmo=$(awk -v r="$rtt_ms" -v j="$jitter" 'BEGIN { t = 2 * r * (1 + j / 100) + 500; if (t < 1000) t = 1000; printf "%d", t }')
-"$demo" --server "${paddr/:/#}" --key "$key" --headless --timeout-ms "$tmo" --duration "$duration" --answers "$min_answers" \
+"$demo" --server "${paddr/:/#}" --key "$key" --headless --timeout-ms "$tmo" --window "$window" --duration "$duration" --answers "$min_answers" \
   --max-duration "$max_s" --results "$results" > "$results/client.txt" 2>&1
 crc=$?
 for _ in $(seq 1200); do kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
@@ -104,9 +106,9 @@ gv() { sed -n "s/^$2: *\([^ ]*\).*/\1/p" "$results/$1" | head -1; }
 "$hapctl" analyze "$results/simlog.bin" --out "$results/analysis" --stats "$results/hap_stats.txt" > "$results/analyze.out" 2>&1
 av() { sed -n "s/^$1: //p" "$results/analysis/analysis.txt" 2>/dev/null | head -1; }
 
-echo "# link: rtt $rtt_ms ms (one way $(nv to_server_delay_us) us / $(nv to_client_delay_us) us), jitter ±$jitter %, loss $loss %, dup $dup %, reorder $reorder %, seed $seed; guest $mode"
+echo "# link: rtt $rtt_ms ms (one way $(nv to_server_delay_us) us / $(nv to_client_delay_us) us), jitter ±$jitter %, loss $loss %, dup $dup %, reorder $reorder %, seed $seed; client window $window; guest $mode"
 for d in to_server to_client; do
-  echo "# FIGURE proxy $d: received $(nv ${d}_received), forwarded $(nv ${d}_forwarded), dropped $(nv ${d}_dropped), duplicated $(nv ${d}_duplicated), reordered $(nv ${d}_reordered), in flight $(nv ${d}_in_flight), send errors $(nv ${d}_send_errors), latest send after due $(nv ${d}_late_us_max) us (host scheduling)"
+  echo "# FIGURE proxy $d: received $(nv ${d}_received), forwarded $(nv ${d}_forwarded), dropped $(nv ${d}_dropped), duplicated $(nv ${d}_duplicated), reordered $(nv ${d}_reordered), in flight $(nv ${d}_in_flight), send errors $(nv ${d}_send_errors); host scheduling: latest send after due $(nv ${d}_late_us_max) us, $(nv ${d}_late_over_1ms) sent > 1 ms late"
 done
 echo "# FIGURE client: frames sent $(sv frames_sent) (VPr $(sv vpr_sent), held by pacing $(sv vpr_held)), answers $(sv answers), lost $(sv lost) (loss ratio $(sv loss_ratio)), duplicates dropped $(sv duplicates), stale (older) dropped $(sv stale), rtt mean $(sv rtt_ms_mean) ms max $(sv rtt_ms_max) ms, run $(sv duration_s) s, sample rate $(sv sample_rate_hz) Hz real time"
 echo "# FIGURE client scene: wall contact $(sv wall_contact_cycles) cycles, free mass contact $(sv free_mass_contact_cycles) cycles (it travelled $(sv free_mass_travel_m) m); handle travel $(sv handle_travel_m) m, coupled sphere travel $(sv coupled_travel_m) m; client cycles with a loop older than its 100 ms horizon (force not applied) $(sv stale_cycles); coupling error mean $(sv coupling_error_mean_m) m"

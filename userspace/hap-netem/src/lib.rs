@@ -198,6 +198,8 @@ pub struct Counters {
     /// The latest a datagram left after its due time, µs (the host's
     /// scheduling; a figure, not part of the emulation).
     pub late_us_max: u64,
+    /// Datagrams that left more than 1 ms after their due time.
+    pub late_over_1ms: u64,
 }
 
 impl Counters {
@@ -219,6 +221,7 @@ impl Counters {
             ("in_flight", self.in_flight),
             ("send_errors", self.send_errors),
             ("late_us_max", self.late_us_max),
+            ("late_over_1ms", self.late_over_1ms),
         ] {
             let _ = writeln!(out, "{p}_{k}: {v}");
         }
@@ -347,6 +350,9 @@ impl<T: Clone> Lane<T> {
         }
         let late_us = sent_ns.saturating_sub(p.due_ns) / 1000;
         self.counters.late_us_max = self.counters.late_us_max.max(late_us);
+        if late_us > 1000 {
+            self.counters.late_over_1ms += 1;
+        }
     }
 }
 
@@ -608,6 +614,21 @@ mod tests {
         }
         assert!(lane.counters.reconciles());
         assert_eq!(lane.counters.in_flight, 0);
+    }
+
+    #[test]
+    fn lateness_is_counted_from_the_due_time() {
+        let mut lane = Lane::new(Shaper::new(imp(10, 0.0, 0.0), 1, Direction::ToServer));
+        lane.arrive(0, 0u8);
+        lane.arrive(0, 1u8);
+        assert!(lane.pop_due(9_999_999).is_none());
+        let a = lane.pop_due(10_000_000).unwrap();
+        lane.sent(&a, 10_500_000, true); // 0.5 ms late
+        let b = lane.pop_due(u64::MAX).unwrap();
+        lane.sent(&b, 13_000_000, true); // 3 ms late
+        assert_eq!(lane.counters.late_us_max, 3000);
+        assert_eq!(lane.counters.late_over_1ms, 1);
+        assert_eq!(lane.counters.reordered, 0);
     }
 
     #[test]
