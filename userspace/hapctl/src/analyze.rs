@@ -872,16 +872,29 @@ impl<'a> Run<'a> {
             "link_fading_events: {}",
             count(|k| k == EventKind::LinkFading)
         );
-        // The link watchdog's gain over the cycles in session with a VPr in
-        // use: the fraction at full gain (1: the coupling never faded), the
-        // lowest gain and the oldest VPr.
-        let linked: Vec<&&LogRecord> = self
-            .recs
-            .iter()
-            .filter(|r| r.timing.session != 0 && r.vpr_age_cycles != LogRecord::NO_VPR)
-            .collect();
+        // The link watchdog's gain over the cycles where the coupling acts
+        // (powered, in session, a VPr in use): the fraction at full gain (1:
+        // the coupling never faded), the fades (entries below full gain),
+        // the lowest gain and the oldest VPr. A client that powers off
+        // before it closes leaves its last VPr to age unpowered: not counted.
+        let coupled = |r: &LogRecord| {
+            has(r.status, status::POWER_ON)
+                && r.timing.session != 0
+                && r.vpr_age_cycles != LogRecord::NO_VPR
+        };
+        let linked: Vec<&&LogRecord> = self.recs.iter().filter(|r| coupled(r)).collect();
         let full = linked.iter().filter(|r| r.link_gain == Fx::ONE).count();
+        let mut fades = 0u64;
+        let mut fading = false;
+        for r in &self.recs {
+            let now = coupled(r) && r.link_gain != Fx::ONE;
+            if now && !fading {
+                fades += 1;
+            }
+            fading = now;
+        }
         let _ = writeln!(s, "link_cycles: {}", linked.len());
+        let _ = writeln!(s, "link_fades: {fades}");
         let _ = writeln!(
             s,
             "link_full_gain_fraction: {:.6}",
@@ -1735,8 +1748,10 @@ mod tests {
     fn link_gain_figures_cover_the_cycles_with_a_vpr_in_session() {
         let recs = scripted();
         let text = Run::new(&recs, PERIOD_US, 0).summary_text(None);
-        // 210..800 in session with a VPr; 700..760 at half gain, 60 cycles old.
+        // 210..800 powered in session with a VPr; 700..760 at half gain, 60
+        // cycles old: one fade.
         assert!(text.contains("link_cycles: 590\n"), "{text}");
+        assert!(text.contains("link_fades: 1\n"), "{text}");
         assert!(
             text.contains(&format!("link_full_gain_fraction: {:.6}\n", 530.0 / 590.0)),
             "{text}"
