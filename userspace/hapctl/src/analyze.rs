@@ -32,8 +32,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use hap_core::arm::TAU_MAX;
-use hap_core::fixed::Fx;
 use hap_core::control::{BRAKE_START, MAX_FORCE};
+use hap_core::fixed::Fx;
 use hap_core::position_log::{LogMode, LogRecord};
 use hap_core::servo::log_flags;
 use hap_core::stats::{histogram_entries, key_values, parse_summary, StatsSummary, HIST_SERIES};
