@@ -531,9 +531,11 @@ fn sigusr1_writes_counters_that_reconcile_mid_run() {
     let px = Netem::start(
         "usr1",
         bridge.addr,
+        // 0.5 s ± 50 %: nothing leaves before the mid-run snapshot, even
+        // on a loaded host.
         &[
             "--delay-ms",
-            "50",
+            "500",
             "--jitter-pct",
             "50",
             "--loss-pct",
@@ -551,7 +553,20 @@ fn sigusr1_writes_counters_that_reconcile_mid_run() {
     assert_reconciles(&mid);
     assert_eq!(stat(&mid, "to_server_received"), 200);
     assert!(stat(&mid, "to_server_in_flight") > 0, "{mid:?}");
-    std::thread::sleep(Duration::from_millis(400));
+    // Until two snapshots 50 ms apart find nothing in flight (an echo
+    // takes 250 ms or more through the proxy).
+    let t = Instant::now();
+    let mut idle = 0;
+    while idle < 2 && t.elapsed() < Duration::from_secs(10) {
+        let s = read_stats_after_usr1(&px);
+        assert_reconciles(&s);
+        if stat(&s, "to_server_in_flight") + stat(&s, "to_client_in_flight") == 0 {
+            idle += 1;
+        } else {
+            idle = 0;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
     let (end, _, _) = px.stop();
     assert_reconciles(&end);
     assert_eq!(stat(&end, "to_server_in_flight"), 0);
