@@ -33,6 +33,7 @@ use std::path::{Path, PathBuf};
 
 use hap_core::arm::TAU_MAX;
 use hap_core::control::{BRAKE_START, MAX_FORCE};
+use hap_core::fixed::Fx;
 use hap_core::mode::Mode;
 use hap_core::position_log::LogRecord;
 use hap_core::servo::log_flags;
@@ -872,6 +873,53 @@ impl<'a> Run<'a> {
             "link_fading_events: {}",
             count(|k| k == EventKind::LinkFading)
         );
+        // The link watchdog's gain over the cycles where the coupling acts
+        // (powered, in session, a VPr in use): the fraction at full gain (1:
+        // the coupling never faded), the fades (entries below full gain),
+        // the lowest gain and the oldest VPr. A client that powers off
+        // before it closes leaves its last VPr to age unpowered: not counted.
+        let coupled = |r: &LogRecord| {
+            has(r.status, status::POWER_ON)
+                && r.timing.session != 0
+                && r.vpr_age_cycles != LogRecord::NO_VPR
+        };
+        let linked: Vec<&&LogRecord> = self.recs.iter().filter(|r| coupled(r)).collect();
+        let full = linked.iter().filter(|r| r.link_gain == Fx::ONE).count();
+        let mut fades = 0u64;
+        let mut fading = false;
+        for r in &self.recs {
+            let now = coupled(r) && r.link_gain != Fx::ONE;
+            if now && !fading {
+                fades += 1;
+            }
+            fading = now;
+        }
+        let _ = writeln!(s, "link_cycles: {}", linked.len());
+        let _ = writeln!(s, "link_fades: {fades}");
+        let _ = writeln!(
+            s,
+            "link_full_gain_fraction: {:.6}",
+            if linked.is_empty() {
+                0.0
+            } else {
+                full as f64 / linked.len() as f64
+            }
+        );
+        let _ = writeln!(
+            s,
+            "link_gain_min: {:.6}",
+            linked
+                .iter()
+                .map(|r| r.link_gain.to_f64())
+                .fold(f64::NAN, f64::min)
+        );
+        let _ = writeln!(
+            s,
+            "vpr_age_max_ms: {:.3}",
+            linked.iter().map(|r| r.vpr_age_cycles).max().unwrap_or(0) as f64
+                * f64::from(self.period_us)
+                / 1000.0
+        );
         let _ = writeln!(
             s,
             "degraded_cycles: {}",
@@ -1590,7 +1638,7 @@ mod tests {
         );
         assert!(felt_stiffness(&[fast, free]).is_none());
     }
-    use hap_core::fixed::{Fx, Vec3};
+    use hap_core::fixed::Vec3;
     use hap_core::position_log::LogTiming;
     use hap_core::vp::alarm;
 
@@ -1626,6 +1674,10 @@ mod tests {
             }
             if (700..760).contains(&c) {
                 r.status |= status::LINK_FADING;
+                r.link_gain = Fx::from_f64(0.5);
+                r.vpr_age_cycles = 60;
+            } else if (210..800).contains(&c) {
+                r.link_gain = Fx::ONE;
             }
             if (400..410).contains(&c) {
                 r.mode = Mode::Degraded;
@@ -1691,6 +1743,22 @@ mod tests {
         for e in &run.events {
             assert!((e.t - e.cycle as f64 * 1e-3).abs() < 1e-9, "{e:?}");
         }
+    }
+
+    #[test]
+    fn link_gain_figures_cover_the_cycles_with_a_vpr_in_session() {
+        let recs = scripted();
+        let text = Run::new(&recs, PERIOD_US, 0).summary_text(None);
+        // 210..800 powered in session with a VPr; 700..760 at half gain, 60
+        // cycles old: one fade.
+        assert!(text.contains("link_cycles: 590\n"), "{text}");
+        assert!(text.contains("link_fades: 1\n"), "{text}");
+        assert!(
+            text.contains(&format!("link_full_gain_fraction: {:.6}\n", 530.0 / 590.0)),
+            "{text}"
+        );
+        assert!(text.contains("link_gain_min: 0.500000\n"), "{text}");
+        assert!(text.contains("vpr_age_max_ms: 60.000\n"), "{text}");
     }
 
     #[test]

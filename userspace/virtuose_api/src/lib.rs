@@ -1044,7 +1044,9 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
                             Err(p) => p.into_inner().prove(&h),
                         };
                         if let Some(w) = proof {
-                            let _ = inner.sock.send(w.bytes());
+                            if inner.sock.send(w.bytes()).is_ok() {
+                                inner.lock().stats.sent += 1;
+                            }
                         }
                         continue;
                     }

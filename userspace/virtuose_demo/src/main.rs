@@ -463,6 +463,10 @@ fn run(args: Args) -> Result<(), String> {
     let (mut last_answers, mut last_answer_t) = (0u64, 0.0f64);
     let (mut handle_travel, mut coupled_travel) = (0.0f64, 0.0f64);
     let mut prev_a = world.a.pos;
+    // The scene's stiff walls and floor (contact springs on sphere A) and
+    // its free mass (sphere B): cycles in contact with each, B's path.
+    let (mut wall_cycles, mut mass_cycles) = (0u64, 0u64);
+    let mut mass_travel = 0.0f64;
     let mut prev_h: Option<V3> = None;
     let mut force = V3::zeros();
     let mut bench = args.bench.then(|| {
@@ -519,8 +523,16 @@ fn run(args: Args) -> Result<(), String> {
         if !fresh {
             stale += 1;
         }
+        let b_before = world.b.pos;
         world.step(dt, applied);
         let a = world.a;
+        if world.wall_on_a.norm() != 0.0 {
+            wall_cycles += 1;
+        }
+        if world.contact_on_a.norm() != 0.0 {
+            mass_cycles += 1;
+        }
+        mass_travel += (world.b.pos - b_before).norm();
         let sp = [
             a.vel.x as f32,
             a.vel.y as f32,
@@ -665,9 +677,12 @@ fn run(args: Args) -> Result<(), String> {
     let rtt_overflow = vc.rtt_overflow();
     let _ = vc.set_power_on(false);
     let _ = vc.close();
+    // Every frame of the session, the power-off and the close included.
+    let frames_sent = vc.link_stats().sent;
     let mut summary = String::new();
     let _ = writeln!(summary, "server: {server}");
     let _ = writeln!(summary, "duration_s: {dur:.3}");
+    let _ = writeln!(summary, "frames_sent: {frames_sent}");
     let _ = writeln!(summary, "vpr_sent: {}", ls.vpr_sent);
     let _ = writeln!(summary, "vpr_held: {held}");
     let _ = writeln!(summary, "answers: {}", ls.answers);
@@ -725,6 +740,9 @@ fn run(args: Args) -> Result<(), String> {
     let _ = writeln!(summary, "stale_cycles: {stale}");
     let _ = writeln!(summary, "handle_travel_m: {handle_travel:.5}");
     let _ = writeln!(summary, "coupled_travel_m: {coupled_travel:.5}");
+    let _ = writeln!(summary, "wall_contact_cycles: {wall_cycles}");
+    let _ = writeln!(summary, "free_mass_contact_cycles: {mass_cycles}");
+    let _ = writeln!(summary, "free_mass_travel_m: {mass_travel:.5}");
     if let Some(b) = &bench {
         b.summary(&mut summary, dur, &ls, rtt_overflow);
     }
