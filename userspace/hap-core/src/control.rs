@@ -21,6 +21,7 @@
 use super::arm::{self, Kinematics};
 use super::config::{CommandType, IndexingMode, ServoConfig};
 use super::fixed::{Fx, Joints, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
+use super::link::PortLedger;
 use super::state_model::{LogicalState, PhysicalState};
 use super::vp::{alarm, status, VpReceived};
 
@@ -310,6 +311,15 @@ pub struct Controller {
     offset_rot: Quat,
     indexing: bool,
     frozen: Pose,
+    /// The controller's port on the link (`link`): energy the handle put
+    /// into the coupling and the coupling gave to the handle, and the
+    /// client's total as received.
+    link: PortLedger,
+    /// Cycles on which the link's passivity controller took force off.
+    link_limited: u64,
+    /// The spring's stored energy at the envelope, J (what the reservoir
+    /// keeps half of).
+    link_keep: Fx,
 }
 
 /// What `cartesian_control` produces.
@@ -384,6 +394,9 @@ impl Controller {
             offset_rot: Quat::IDENTITY,
             indexing: false,
             frozen: Pose::IDENTITY,
+            link: PortLedger::new(),
+            link_limited: 0,
+            link_keep: Fx::ZERO,
         }
     }
 
@@ -412,6 +425,16 @@ impl Controller {
 
     pub fn po_energy(&self) -> Fx {
         self.po_energy
+    }
+
+    /// The controller's port ledger on the link (`link`).
+    pub const fn link(&self) -> &PortLedger {
+        &self.link
+    }
+
+    /// Cycles on which the link's passivity controller took force off.
+    pub const fn link_limited_cycles(&self) -> u64 {
+        self.link_limited
     }
 
     pub fn coupled(&self) -> bool {
@@ -540,6 +563,43 @@ fn fit_scale(base: Fx, add: Fx, lim: Fx) -> Fx {
     room.max(Fx::ZERO).div_sat(add.abs()).min(Fx::ONE)
 }
 
+/// The link's passivity controller (see `cartesian_control`): takes off
+/// `w` the part of its push along the handle's motion (force first, then
+/// torque) that would give the handle more than `ctrl.link`'s budget over
+/// one period.
+fn link_limit(ctrl: &mut Controller, w: &mut Wrench, v_h: Vec3, w_h: Vec3) {
+    let t = ctrl.period;
+    let p_f = w.force.dot(v_h).mul_sat(t).max(Fx::ZERO);
+    let p_t = w.torque.dot(w_h).mul_sat(t).max(Fx::ZERO);
+    let mut over = p_f
+        .add_sat(p_t)
+        .sub_sat(ctrl.link.reservoir().max(Fx::ZERO));
+    if over.0 <= 0 {
+        return;
+    }
+    ctrl.link_limited = ctrl.link_limited.saturating_add(1);
+    // A hair more than the excess, for the rounding of the products.
+    over = over.add_sat(Fx(over.0 >> 10)).add_sat(Fx(16));
+    let take_f = over.min(p_f);
+    w.force = w.force.sub(along(v_h, take_f, t));
+    let take_t = over.sub_sat(take_f).min(p_t);
+    w.torque = w.torque.sub(along(w_h, take_t, t));
+}
+
+/// The vector along `v` whose power on `v` over `t` seconds is `e` (J):
+/// `e/(t·|v|)·v̂`. Zero for `e ≤ 0` or `v` = 0. (Through the unit vector:
+/// `t·|v|²` has too few bits at low speeds.)
+pub fn along(v: Vec3, e: Fx, t: Fx) -> Vec3 {
+    if e.0 <= 0 || t.0 <= 0 {
+        return Vec3::ZERO;
+    }
+    let n = v.norm();
+    if n.0 <= 0 {
+        return Vec3::ZERO;
+    }
+    v.scale(n.recip()).scale(e.div_sat(t).div_sat(n))
+}
+
 /// `cartesian_control`.
 #[allow(clippy::too_many_lines)]
 #[inline(never)]
@@ -557,6 +617,14 @@ pub fn cartesian_control(
     let w_h = ps.twist.angular;
     let mut alarms = 0u32;
     let mut st = 0u32;
+
+    // The client's link energy total (`link`): a session starts with an
+    // invalid VPr, and both ends' totals with it.
+    if !vpr.valid {
+        ctrl.link = PortLedger::new();
+    } else if vpr.link_energy {
+        ctrl.link.peer.receive(vpr.client_time_us);
+    }
 
     let sf = if config.speed_factor.0 > 0 {
         config.speed_factor
@@ -860,6 +928,21 @@ pub fn cartesian_control(
         w = w
             .saturate(MAX_FORCE.mul_sat(env), MAX_TORQUE.mul_sat(env))
             .0;
+        // Link passivity controller (`link`): with a client that reports
+        // its energy, the coupling may give the handle, over this period,
+        // only the energy the client put into the link (as received) less
+        // what it already gave. The port's power sample is `F·v_h·T` (and
+        // `τ·ω_h·T`); the part of the force along the handle's motion that
+        // would exceed the budget is taken off (`F − c·v̂`, `0 ≤ c ≤ F·v̂`:
+        // never more than the force's own push along the motion, so no
+        // active damping). The allocation below only scales the wrench
+        // down, which keeps the positive parts within the budget.
+        if vpr.link_energy {
+            ctrl.link_keep = spring_energy(&g, f_lim, d_eff, e_eff).mul_sat(env);
+            link_limit(ctrl, &mut w, v_h, w_h);
+        } else {
+            ctrl.link_keep = Fx::ZERO;
+        }
         ctrl.prev_target = target;
         ctrl.prev_q = ps.q;
         ctrl.coupled = true;
@@ -871,6 +954,8 @@ pub fn cartesian_control(
         ctrl.coupled = false;
         ctrl.envelope = Fx::ZERO;
         ctrl.prev_wrench = Wrench::ZERO;
+        ctrl.link_keep = Fx::ZERO;
+        ctrl.link.grant_beyond(Fx::ZERO);
     }
 
     // ---- Fixed torques: gravity compensation, then the joint velocity
@@ -1020,6 +1105,18 @@ pub fn cartesian_control(
         *o = tf.add_sat(*tc).clamp_abs(*lim);
     }
     if ctrl.coupled {
+        // The handle port's energy on the link this period (> 0: the
+        // coupling gave it to the handle).
+        let e_port = handle_wrench
+            .force
+            .dot(v_h)
+            .add_sat(handle_wrench.torque.dot(w_h))
+            .mul_sat(ctrl.period);
+        ctrl.link.record(e_port);
+        // Grant the client what the reservoir holds beyond half the energy
+        // the spring stores (the handle's share if the spring gives it back).
+        let stored = ctrl.link_keep;
+        ctrl.link.grant_beyond(stored.half());
         ctrl.prev_wrench = handle_wrench;
         for ((p, o), tf) in ctrl
             .prev_tau_c

@@ -111,6 +111,8 @@ fn samples() -> Vec<(FrameHeader, Frame)> {
                 alarms: 0,
                 cycle: 123_456,
                 vpr_seq: 12,
+                // 3.5 J put into the channel (2^-20 J units).
+                link_energy: 7 << 19,
             }),
         ),
         (
