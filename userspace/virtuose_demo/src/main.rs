@@ -50,6 +50,10 @@ struct Args {
     /// Reply timeout of acknowledged requests, ms.
     #[arg(long, default_value_t = 250)]
     timeout_ms: u64,
+    /// Keep the link passive (time-domain passivity across the network,
+    /// `Options::link_passivity`): for a slow link (WAN, cellular).
+    #[arg(long)]
+    link_passivity: bool,
     /// Client request interval in µs (overrides --rate; e.g. 3000 for the
     /// spec's 1 sample / 3 ms).
     #[arg(long, value_parser = clap::value_parser!(u32).range(200..=100_000))]
@@ -360,6 +364,7 @@ fn run(args: Args) -> Result<(), String> {
         reply_timeout: Duration::from_millis(args.timeout_ms),
         attempts: 4,
         key,
+        link_passivity: args.link_passivity,
     };
     println!("connecting to {server}");
     let mut vc = VirtContext::open_with(&server, opts).map_err(|e| format!("{server}: {e}"))?;

@@ -224,21 +224,11 @@ struct Client {
     seq: u32,
 }
 
-/// What a run's user does: random efforts then a release
-/// ([`run`]), or a scripted push into the wall ([`probe_wall`]).
-#[derive(Clone, Copy)]
-enum Script {
-    Random {
-        release_at: u64,
-    },
-    /// Force along +x, N, as a function of the cycle.
-    Push,
-}
-
-fn push_force(n: u64) -> f64 {
-    // 0 → 5 N over 1 s, hold 2 s, → 10 N over 1 s, hold 2 s, → 0 over 1 s,
-    // then nothing for 3 s.
-    let t = n as f64 * DT;
+/// The probe's force along +x, N, at cycle `n`, its phases `k` times
+/// longer than the base script: 0 → 5 N over 1 s, hold 2 s, → 10 N over
+/// 1 s, hold 2 s, → 0 over 1 s, then nothing for 3 s.
+fn push_force(n: u64, k: f64) -> f64 {
+    let t = n as f64 * DT / k;
     match t {
         t if t < 1.0 => 5.0 * t,
         t if t < 3.0 => 5.0,
@@ -249,8 +239,14 @@ fn push_force(n: u64) -> f64 {
     }
 }
 
-/// Cycles of the wall probe.
+/// Cycles of the wall probe's base script (10 s).
 pub const PROBE_CYCLES: u64 = 10_000;
+
+/// The probe's time scale for a round trip: its phases last at least four
+/// round trips (1 at up to 250 ms).
+pub fn probe_scale(rtt_ms: f64) -> f64 {
+    (rtt_ms / 250.0).max(1.0)
+}
 
 /// The probe's figures: the felt stiffness of the wall (N/m, the force
 /// step 5 → 10 N over the handle's move between the two plateaus), and
@@ -531,16 +527,14 @@ pub fn run(seed: u64, link: Link, cycles: u64) -> LinkFigures {
     let mut sim = Sim::new(seed, link);
     let release_at = cycles * 7 / 10;
     let window = 200u64.min((cycles - release_at) / 2);
-    let script = Script::Random { release_at };
     for n in 0..cycles {
         let (p, v) = sim.handle_state();
-        let user = match script {
-            // (The first answer is the cycle's output: from cycle 1 on.)
-            Script::Random { release_at } if n > 0 && n < release_at => {
-                let obj = sim.link.object;
-                sim.hand.force(&mut sim.rng, obj, p, v)
-            }
-            _ => [0.0; 3],
+        // (The first answer is the cycle's output: from cycle 1 on.)
+        let user = if n > 0 && n < release_at {
+            let obj = sim.link.object;
+            sim.hand.force(&mut sim.rng, obj, p, v)
+        } else {
+            [0.0; 3]
         };
         sim.step(n, user);
         if n >= release_at {
@@ -577,7 +571,9 @@ pub fn probe_wall(rtt_ms: f64, jitter: f64, loss: f64, passivity: bool, seed: u6
     let mut sim = Sim::new(seed, link);
     let (mut x5, mut x10, mut k5, mut k10) = (0.0, 0.0, 0u32, 0u32);
     let mut handle_at_start: Option<[f64; 3]> = None;
-    for n in 0..PROBE_CYCLES {
+    let k = probe_scale(rtt_ms);
+    let cycles = (PROBE_CYCLES as f64 * k) as u64;
+    for n in 0..cycles {
         let (p, v) = sim.handle_state();
         // (The first answer is the cycle's output: from cycle 1 on.)
         let home = if n == 0 {
@@ -587,7 +583,7 @@ pub fn probe_wall(rtt_ms: f64, jitter: f64, loss: f64, passivity: bool, seed: u6
         };
         // The hand holds the handle's y and z (a soft hold), pushes along x.
         let user = [
-            push_force(n),
+            push_force(n, k),
             -300.0 * (p[1] - home[1]) - 5.0 * v[1],
             -300.0 * (p[2] - home[2]) - 5.0 * v[2],
         ];
@@ -608,7 +604,7 @@ pub fn probe_wall(rtt_ms: f64, jitter: f64, loss: f64, passivity: bool, seed: u6
                 f(sim.client.link.ledger.reservoir()),
             );
         }
-        let t = n as f64 * DT;
+        let t = n as f64 * DT / k;
         if (2.5..3.0).contains(&t) {
             x5 += p[0];
             k5 += 1;
