@@ -25,7 +25,7 @@ fn check(l: &Link, seed: u64, r: &LinkFigures) {
         if r.channel_min < -1e-4 {
             bad("the channel created energy");
         }
-        if r.release_end > r.release_start * 1.05 + 1e-6 {
+        if r.release_end > r.release_peak * 1.05 + 1e-6 {
             bad("oscillation grew after the release");
         }
         if r.faded_cycles != 0 {
@@ -92,7 +92,7 @@ fn main() {
                     ls += r.limited_server;
                     lc += r.limited_client;
                     drift = drift.max(r.drift);
-                    decay = decay.max(r.release_end / r.release_start.max(1e-12));
+                    decay = decay.max(r.release_end / r.release_peak.max(1e-12));
                     cyc += r.cycles;
                 }
                 total += cyc;
@@ -142,7 +142,7 @@ fn main() {
             "-",
             "-",
             r.drift * 1000.0,
-            r.release_end / r.release_start.max(1e-12)
+            r.release_end / r.release_peak.max(1e-12)
         );
     }
     println!("cycles: {total}; lowest channel energy with the controllers on: {worst:.3e} J");

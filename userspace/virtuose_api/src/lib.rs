@@ -925,6 +925,13 @@ impl VirtContext {
         ])
     }
 
+    /// This end's link ledger (`Options::link_passivity`): its port's
+    /// energy in and out, its grants and the controller's, J (controller
+    /// units).
+    pub fn link_ledger(&self) -> hap_core::link::PortLedger {
+        self.inner.lock().link.ledger
+    }
+
     /// Raw `hap_core::vp::status` bits of the last answer.
     pub fn get_status(&self) -> Result<u32> {
         self.with_answer(|a, _| a.status)

@@ -83,8 +83,13 @@ pub struct LinkFigures {
     pub reordered: u64,
     pub stale_rejects: u64,
     /// Oscillation energy (J) of object and handle after the user lets go:
-    /// largest over the first and over the last 200 ms of the release.
+    /// largest over the first 200 ms of the release, over the release
+    /// before its last 200 ms, and over its last 200 ms. The link stores
+    /// energy (the spring, the reservoirs, grants in flight) that may come
+    /// out after the release; a growing oscillation is one whose last
+    /// window holds more than any before it.
     pub release_start: f64,
+    pub release_peak: f64,
     pub release_end: f64,
     /// Largest |handle − object| (client frame) at the end, m.
     pub drift: f64,
@@ -541,8 +546,11 @@ pub fn run(seed: u64, link: Link, cycles: u64) -> LinkFigures {
             let e = sim.oscillation_energy();
             if n < release_at + window {
                 sim.figs.release_start = sim.figs.release_start.max(e);
-            } else if n >= cycles - window {
+            }
+            if n >= cycles - window {
                 sim.figs.release_end = sim.figs.release_end.max(e);
+            } else {
+                sim.figs.release_peak = sim.figs.release_peak.max(e);
             }
         }
         sim.figs.cycles += 1;
