@@ -8,14 +8,12 @@
 //! run whose channel created energy, whose force or speed bound broke,
 //! whose oscillation grew after the release or whose live link faded.
 //! Usage: link_passivity [RUNS_PER_CASE] [CYCLES_PER_RUN]
+#[path = "../tests/common/campaign.rs"]
+mod campaign;
 #[path = "../tests/common/link_campaign.rs"]
 mod link_campaign;
 
 use link_campaign::{force_bound, probe_wall, run, Link, LinkFigures, Object};
-
-/// The largest handle speed the safety campaign allows at 1 ms, m/s (the
-/// Cartesian brake's onset and the coupling's stop are far below it).
-const SPEED_BOUND: f64 = 2.5;
 
 fn check(l: &Link, seed: u64, r: &LinkFigures) {
     let bad = |what: &str| -> ! {
@@ -35,7 +33,8 @@ fn check(l: &Link, seed: u64, r: &LinkFigures) {
     if r.max_force > force_bound() * (1.0 + 1e-6) {
         bad("force bound");
     }
-    if r.max_speed > SPEED_BOUND {
+    // The safety campaign's proven handle speed bound at 1 ms.
+    if r.max_speed > campaign::handle_speed_bound(1_000_000) {
         bad("speed bound");
     }
 }
@@ -46,6 +45,11 @@ fn main() {
     let cycles: u64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(20_000);
     println!(
         "mode: host native, deterministic; {runs} runs × {cycles} cycles per case, 1 ms period"
+    );
+    println!(
+        "bounds: force {} N, handle speed {:.2} m/s (the safety campaign's)",
+        force_bound(),
+        campaign::handle_speed_bound(1_000_000)
     );
     println!(
         "{:>7} {:>5} {:>5} {:>6} {:>6} {:>13} {:>13} {:>8} {:>8} {:>9} {:>9} {:>8} {:>8}",

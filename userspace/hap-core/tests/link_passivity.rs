@@ -2,6 +2,8 @@
 //! across a delayed, jittery, lossy, reordering channel (a small seed set;
 //! the full campaign is `scripts/bench-link-passivity.sh`).
 
+#[path = "common/campaign.rs"]
+mod campaign;
 #[path = "common/link_campaign.rs"]
 mod link_campaign;
 
@@ -37,6 +39,10 @@ fn slow_link_stays_coupled_and_the_channel_creates_no_energy() {
                 "channel created energy: {l:?}: {r:?}"
             );
             assert!(r.max_force <= force_bound() * (1.0 + 1e-6), "{r:?}");
+            assert!(
+                r.max_speed <= campaign::handle_speed_bound(1_000_000),
+                "{r:?}"
+            );
             assert!(
                 r.release_end <= r.release_peak * 1.05 + 1e-6,
                 "oscillation grew after release: {l:?}: {r:?}"
