@@ -94,6 +94,9 @@ pub const PO_TOLERANCE: Fx = Fx(-(1 << 12));
 /// Passivity controller damping caps, N·s/m and N·m·s/rad.
 pub const PC_ALPHA_MAX: Fx = Fx::from_int(5);
 pub const PC_ALPHA_ROT_MAX: Fx = Fx::from_ratio(2, 100);
+/// The controller grants the client energy every this many cycles (its
+/// grants travel in `answer_twist`, sent every `proto_synchro::TWIST_EVERY`).
+pub const LINK_GRANT_EVERY: u32 = 4;
 /// Coupling force ramp: the envelope goes from 0 to 1 (and 1 to 0) in
 /// `RAMP_US` µs at the most (slew ≤ `MAX_FORCE`/`RAMP_US` = 0.4 N/ms). It is
 /// the link watchdog's fade slope, so the envelope follows the fade exactly.
@@ -317,9 +320,12 @@ pub struct Controller {
     link: PortLedger,
     /// Cycles on which the link's passivity controller took force off.
     link_limited: u64,
-    /// The spring's stored energy at the envelope, J (what the reservoir
-    /// keeps half of).
+    /// `f·d + τ·e` of the spring at the envelope, J: twice its energy
+    /// when linear (the reservoir keeps a quarter of it).
     link_keep: Fx,
+    /// Counts the link-passive coupled cycles (grants every
+    /// `LINK_GRANT_EVERY`).
+    link_phase: u32,
 }
 
 /// What `cartesian_control` produces.
@@ -397,6 +403,7 @@ impl Controller {
             link: PortLedger::new(),
             link_limited: 0,
             link_keep: Fx::ZERO,
+            link_phase: 0,
         }
     }
 
@@ -567,15 +574,19 @@ fn fit_scale(base: Fx, add: Fx, lim: Fx) -> Fx {
 /// `w` the part of its push along the handle's motion (force first, then
 /// torque) that would give the handle more than `ctrl.link`'s budget over
 /// one period.
-fn link_limit(ctrl: &mut Controller, w: &mut Wrench, v_h: Vec3, w_h: Vec3) {
+///
+/// Returns the port's energy `w·(v_h, ω_h)·T` when it left `w` as it was
+/// (the common case: the caller records it without computing it again).
+fn link_limit(ctrl: &mut Controller, w: &mut Wrench, v_h: Vec3, w_h: Vec3) -> Option<Fx> {
     let t = ctrl.period;
-    let p_f = w.force.dot(v_h).mul_sat(t).max(Fx::ZERO);
-    let p_t = w.torque.dot(w_h).mul_sat(t).max(Fx::ZERO);
+    let e_f = w.force.dot(v_h).mul_sat(t);
+    let e_t = w.torque.dot(w_h).mul_sat(t);
+    let (p_f, p_t) = (e_f.max(Fx::ZERO), e_t.max(Fx::ZERO));
     let mut over = p_f
         .add_sat(p_t)
         .sub_sat(ctrl.link.reservoir().max(Fx::ZERO));
     if over.0 <= 0 {
-        return;
+        return Some(e_f.add_sat(e_t));
     }
     ctrl.link_limited = ctrl.link_limited.saturating_add(1);
     // A hair more than the excess, for the rounding of the products.
@@ -584,6 +595,7 @@ fn link_limit(ctrl: &mut Controller, w: &mut Wrench, v_h: Vec3, w_h: Vec3) {
     w.force = w.force.sub(along(v_h, take_f, t));
     let take_t = over.sub_sat(take_f).min(p_t);
     w.torque = w.torque.sub(along(w_h, take_t, t));
+    None
 }
 
 /// The vector along `v` whose power on `v` over `t` seconds is `e` (J):
@@ -726,6 +738,8 @@ pub fn cartesian_control(
     ctrl.envelope = env;
 
     let mut handle_wrench = Wrench::ZERO;
+    // The link port's energy as the limiter computed it, with its wrench.
+    let mut link_port: Option<(Fx, Wrench)> = None;
     let mut target = ctrl.held_target;
     // (error, its slipped part) of an active spring; saturation factors.
     let mut spring: Option<(Vec3, Vec3, Vec3, Vec3, Vec3)> = None;
@@ -938,8 +952,21 @@ pub fn cartesian_control(
         // active damping). The allocation below only scales the wrench
         // down, which keeps the positive parts within the budget.
         if vpr.link_energy {
-            ctrl.link_keep = spring_energy(&g, f_lim, d_eff, e_eff).mul_sat(env);
-            link_limit(ctrl, &mut w, v_h, w_h);
+            // ½·(f·d + τ·e) at the envelope: the linear spring's energy,
+            // a little above the saturated one's (no root: any share kept
+            // leaves the link passive; this one is what the spring holds).
+            // Needed when the controller grants: every `LINK_GRANT_EVERY`
+            // cycles (the grants travel in `answer_twist`, every 4th).
+            ctrl.link_phase = ctrl.link_phase.wrapping_add(1);
+            if ctrl.link_phase % LINK_GRANT_EVERY == 0 {
+                ctrl.link_keep =
+                    sw.0.force
+                        .dot(d_eff)
+                        .add_sat(sw.0.torque.dot(e_eff))
+                        .mul_sat(env)
+                        .max(Fx::ZERO);
+            }
+            link_port = link_limit(ctrl, &mut w, v_h, w_h).map(|e| (e, w));
         } else {
             ctrl.link_keep = Fx::ZERO;
         }
@@ -1104,19 +1131,27 @@ pub fn cartesian_control(
         // Within the limit up to rounding of the scaled products.
         *o = tf.add_sat(*tc).clamp_abs(*lim);
     }
-    if ctrl.coupled {
+    if ctrl.coupled && vpr.link_energy {
         // The handle port's energy on the link this period (> 0: the
-        // coupling gave it to the handle).
-        let e_port = handle_wrench
-            .force
-            .dot(v_h)
-            .add_sat(handle_wrench.torque.dot(w_h))
-            .mul_sat(ctrl.period);
+        // coupling gave it to the handle): the limiter's when the wrench
+        // reached the motors as it left it.
+        let e_port = match link_port {
+            Some((e, w)) if w == handle_wrench => e,
+            _ => handle_wrench
+                .force
+                .dot(v_h)
+                .mul_sat(ctrl.period)
+                .add_sat(handle_wrench.torque.dot(w_h).mul_sat(ctrl.period)),
+        };
         ctrl.link.record(e_port);
         // Grant the client what the reservoir holds beyond half the energy
-        // the spring stores (the handle's share if the spring gives it back).
-        let stored = ctrl.link_keep;
-        ctrl.link.grant_beyond(stored.half());
+        // the spring stores (the handle's share if the spring gives it back):
+        // `link_keep` is twice the linear spring's energy, so keep a quarter.
+        if ctrl.link_phase % LINK_GRANT_EVERY == 0 {
+            ctrl.link.grant_beyond(Fx(ctrl.link_keep.0 >> 2));
+        }
+    }
+    if ctrl.coupled {
         ctrl.prev_wrench = handle_wrench;
         for ((p, o), tf) in ctrl
             .prev_tau_c
