@@ -630,7 +630,7 @@ pub fn cartesian_control(
     let mut alarms = 0u32;
     let mut st = 0u32;
 
-    // The client's link energy total (`link`): a session starts with an
+    // The client's link energy grants (`link`): a session starts with an
     // invalid VPr, and both ends' totals with it.
     if !vpr.valid {
         ctrl.link = PortLedger::new();

@@ -1,34 +1,36 @@
-//! Time-domain passivity across the network link: the two-port approach.
+//! Time-domain passivity across the network link: the two-port approach
+//! with energy grants.
 //!
-//! The link between the controller's coupling and the client's virtual
-//! object is a two-port: at the controller's end (port S) the spring's
-//! target moves with the pose the client sent and the spring pulls it with
-//! the coupling force; at the client's end (port C) the client's object
-//! receives that force and moves. Delay, jitter, loss and reordering turn
-//! this channel into a source of energy. Each end therefore keeps, for its
-//! own port, two running totals in joules, both non-decreasing:
+//! The network between the user's hand and the client's virtual object is
+//! the coupling spring and the channel. Its two ports are the **handle**
+//! (the coupling's wrench on it, its twist) at the controller and the
+//! **object** (the coupling wrench it receives, its twist) at the client.
+//! Delay, jitter, loss and reordering make this network a source of
+//! energy. Each end observes its port with Ryu's sampled power `F·v·T`
+//! ([`PortLedger::record`]: `energy_in` what its side put in, `energy_out`
+//! what the link gave it, both non-decreasing) and keeps a reservoir
 //!
-//! - `energy_in`: energy that its side put into the channel,
-//! - `energy_out`: energy that the channel gave to its side,
+//! `R = energy_in + grants received − energy_out − grants given`
 //!
-//! sends `energy_in` to the other end with its frames, and keeps its own
-//! `energy_out` at or below the *received* `energy_in` of the other end:
-//! `E_out,S(t) ≤ E_in,C(t − T₁)` at the controller and
-//! `E_out,C(t) ≤ E_in,S(t − T₂)` at the client. A received total is an
-//! earlier value of a non-decreasing sum, so the channel's energy
-//! `E_in,S + E_in,C − E_out,S − E_out,C` stays ≥ 0 whatever the delays.
-//! Because the totals are running sums, a lost frame loses no energy (the
-//! next one carries it) and a reordered older frame changes nothing (the
-//! receiver keeps the largest total it has seen).
+//! ([`PortLedger::reservoir`]). An end hands energy to the other end by
+//! *granting* it: the grants are a non-decreasing running total sent with
+//! its frames. Its passivity controller keeps `R ≥ 0` (the push along the
+//! motion that `R` does not cover is taken off before the step). Then,
+//! whatever the delays, the network's energy
+//! `E_in,S + E_in,C − E_out,S − E_out,C = R_S + R_C + (grants in flight)`
+//! stays ≥ 0. Because grants are running totals, a lost frame loses no
+//! energy (the next one carries it) and a reordered older frame changes
+//! nothing (the receiver keeps the largest total it has seen).
 //!
 //! On the wire a total is a `u32` in units of 2⁻²⁰ J (about 0.95 µJ),
 //! rounded down by the sender (a receiver never credits more than was
-//! sent), and wraps modulo 2³²; the receiver takes `wire − last` as a signed
-//! 32-bit difference and credits it only when positive. The sender must not
-//! accumulate 2³¹ units (2048 J) between two frames the receiver accepts; a
-//! larger jump would be taken for an older frame and ignored (which can
-//! only withhold energy). See `Documentation/protocol.md` §2 and
-//! `Documentation/control.md` for the passivity controllers of each end.
+//! granted), and wraps modulo 2³²; the receiver takes `wire − last` as a
+//! signed 32-bit difference and credits it only when positive. The sender
+//! must not grant 2³¹ units (2048 J) between two frames the receiver
+//! accepts; a larger jump would be taken for an older frame and ignored
+//! (which can only withhold energy). See `Documentation/protocol.md` §2
+//! ("Link energy") and `Documentation/control.md` ("Passivity across the
+//! link").
 
 use super::control::along;
 #[cfg(test)]

@@ -45,9 +45,10 @@ pub const CTRL_ACK_REQUEST: u16 = 1 << 0;
 /// Control word: this frame is a retransmission (informational).
 pub const CTRL_RETRANSMIT: u16 = 1 << 1;
 /// Control word: on a `VprStream`, the header's timestamp field carries the
-/// client's link energy total (`link`: energy it put into the channel, u32
-/// in 2⁻²⁰ J, wrapping) instead of its clock; the controller then keeps the
-/// channel passive (`Documentation/control.md`). Ignored on other frames.
+/// client's link energy grants (`link`: the energy it granted the
+/// controller, a running total, u32 in 2⁻²⁰ J, wrapping) instead of its
+/// clock; the controller then keeps the link passive
+/// (`Documentation/control.md`). Ignored on other frames.
 pub const CTRL_LINK_ENERGY: u16 = 1 << 2;
 /// Control word bits that are defined; the others must be zero.
 pub const CTRL_KNOWN: u16 = CTRL_ACK_REQUEST | CTRL_RETRANSMIT | CTRL_LINK_ENERGY;
@@ -224,8 +225,8 @@ pub struct AnswerTwist {
     pub alarms: u32,
     pub cycle: u32,
     pub vpr_seq: u32,
-    /// The controller's link energy total: energy its side put into the
-    /// channel, 2⁻²⁰ J, wrapping (`link::energy_to_wire`).
+    /// The controller's link energy grants: the energy it granted the
+    /// client, a running total, 2⁻²⁰ J, wrapping (`link::energy_to_wire`).
     pub link_energy: u32,
 }
 

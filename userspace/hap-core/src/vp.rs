@@ -21,8 +21,8 @@ pub struct VpReceived {
     /// False until the first valid VPr frame of the session.
     pub valid: bool,
     /// The frame carried `CTRL_LINK_ENERGY`: `client_time_us` is the
-    /// client's link energy total (2⁻²⁰ J, wrapping), and the controller
-    /// keeps the channel passive (`link`).
+    /// client's link energy grants (2⁻²⁰ J, wrapping), and the controller
+    /// keeps the link passive (`link`).
     pub link_energy: bool,
     /// Controller time (servo cycle counter) at which the last frame of the
     /// session arrived, this VPr's or any later one, in order or not (the
@@ -147,7 +147,7 @@ pub struct VpSent {
     pub cycle: u64,
     /// Sequence number of the last VPr used.
     pub vpr_seq: u32,
-    /// The controller's link energy total (`AnswerTwist::link_energy`).
+    /// The controller's link energy grants (`AnswerTwist::link_energy`).
     pub link_energy: u32,
 }
 
