@@ -24,6 +24,8 @@
 #     kernel: a real-kernel comparison, not the target's figures. With
 #     --load, stress-ng (cpu, vm, io, hdd) and a hackbench loop run on the
 #     host meanwhile. Histograms of both go to CSV and a plot (hapctl plot).
+# --link: the VPr is a link-passive client's (CTRL_LINK_ENERGY, about 1 W of
+#   energy grants): the cost of the link passivity path (control.md).
 # Run it on an otherwise idle host (not next to a QEMU guest).
 set -euo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
@@ -35,6 +37,7 @@ while [ $# -gt 0 ]; do
     --rt-seconds) rt_s=$2; shift ;;
     --period-us) period_us=$2; shift ;;
     --load) load=1 ;;
+    --link) export HAP_STEP_LINK=1 ;;
     -h|--help) awk 'NR > 1 && /^#/ { print; next } NR > 1 { exit }' "$0"; exit 0 ;;
     *) echo "bench-step: unknown option $1" >&2; exit 2 ;;
   esac

@@ -451,8 +451,8 @@ pub const fn payload_len(ty: FrameType) -> usize {
         FrameType::SessionAck => 2 * NONCE_LEN + 4,
         // pose, wrench, state word, VPr seq (the cycle is in the header)
         FrameType::Answer => 28 + 24 + 8,
-        // twist, state word, VPr seq
-        FrameType::AnswerTwist => 24 + 8,
+        // twist, state word, VPr seq, link energy total
+        FrameType::AnswerTwist => 24 + 12,
         t => t.payload_len(),
     }
 }
@@ -754,10 +754,11 @@ fn seal_reply_with(s2c: &HmacSha256, v1: &[u8]) -> Option<Wire> {
             Some(seal_with(s2c, ty, &h2, &p))
         }
         Frame::AnswerTwist(a) => {
-            let mut p = [0u8; 32];
+            let mut p = [0u8; 36];
             p[..24].copy_from_slice(v1.get(16..40)?);
             p[24..28].copy_from_slice(&state(a.status, a.alarms).to_be_bytes());
             p[28..32].copy_from_slice(&a.vpr_seq.to_be_bytes());
+            p[32..36].copy_from_slice(&a.link_energy.to_be_bytes());
             let h2 = FrameHeader {
                 timestamp_us: a.cycle,
                 ..h
@@ -1641,8 +1642,17 @@ impl ClientAuth {
                 p[keep + 4..keep + 8].copy_from_slice(&(state >> 16).to_be_bytes());
                 p[keep + 8..keep + 12].copy_from_slice(&h.timestamp_us.to_be_bytes());
                 p[keep + 12..keep + 16].copy_from_slice(&vpr_seq.to_be_bytes());
+                // answer_twist: the link energy total follows, as in v1.
+                let tail = if ty == FrameType::AnswerTwist {
+                    let at = state_at + 8;
+                    p[keep + 16..keep + 20].copy_from_slice(&be32(b, at).to_be_bytes());
+                    4
+                } else {
+                    0
+                };
                 hv1.timestamp_us = h.timestamp_us;
-                let w = v1_from_payload(ty, &hv1, &p[..keep + 16]).ok_or(Refusal::Malformed)?;
+                let w =
+                    v1_from_payload(ty, &hv1, &p[..keep + 16 + tail]).ok_or(Refusal::Malformed)?;
                 v1[..n].copy_from_slice(w.bytes());
             }
             _ => {

@@ -180,6 +180,7 @@ fn vectors() -> Vec<(String, &'static str, Wire)> {
             alarms: 0,
             cycle: 123_456,
             vpr_seq: 12,
+            link_energy: 7 << 19,
         }),
         "kernel via the bridge",
     ));

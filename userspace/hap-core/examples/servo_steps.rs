@@ -13,6 +13,8 @@
 //!   its own cycle state, motor line and script (arm 1's effort runs a
 //!   phase ahead of arm 0's): the Ir difference between ARMS = 2 and
 //!   ARMS = 1 is what the second arm adds to a cycle.
+//!   With `HAP_STEP_LINK` set, the VPr is a link-passive client's
+//!   (`CTRL_LINK_ENERGY`, about 1 W of grants): the cost of that path.
 //! * `servo_steps rt SECONDS PERIOD_US` runs the same cycle in a periodic
 //!   loop (absolute `clock_nanosleep` on CLOCK_MONOTONIC) and prints the
 //!   wake-up latency and the cycle time, like cyclictest. Start it under
@@ -41,6 +43,9 @@ struct Script {
     log: [u8; LogRecord::SIZE],
     seq: u32,
     i: u32,
+    /// `HAP_STEP_LINK` set: the VPr carries `link_energy` (the link
+    /// passivity path, `hap_core::link`).
+    link: bool,
 }
 
 impl Script {
@@ -56,8 +61,10 @@ impl Script {
             command_type: CommandType::Impedance,
             ..Default::default()
         };
+        let link = std::env::var_os("HAP_STEP_LINK").is_some();
         let vpr = hap_core::vp::VpReceived {
             valid: true,
+            link_energy: link,
             ..Default::default()
         };
         let mut s = Script {
@@ -70,6 +77,7 @@ impl Script {
             log: [0u8; LogRecord::SIZE],
             seq: 0,
             i: phase,
+            link,
         };
         s.step(PowerRequest::On);
         s
@@ -106,6 +114,12 @@ impl Script {
         };
         self.vpr.seq = i;
         self.vpr.received_cycle = self.cycle.servo.cycle();
+        if self.link {
+            // A client that keeps the link passive, granting about 1 W
+            // (2^10 units of 2^-20 J per cycle).
+            self.vpr.heard_cycle = self.vpr.received_cycle;
+            self.vpr.client_time_us = i.wrapping_mul(1 << 10);
+        }
         let r = self.cycle.run(
             &self.line,
             black_box(&inputs),

@@ -21,6 +21,7 @@
 use super::arm::{self, Kinematics};
 use super::config::{CommandType, IndexingMode, ServoConfig};
 use super::fixed::{Fx, Joints, Pose, Quat, Twist, Vec3, Wrench, JOINTS_ZERO};
+use super::link::PortLedger;
 use super::state_model::{LogicalState, PhysicalState};
 use super::vp::{alarm, status, VpReceived};
 
@@ -93,6 +94,9 @@ pub const PO_TOLERANCE: Fx = Fx(-(1 << 12));
 /// Passivity controller damping caps, N·s/m and N·m·s/rad.
 pub const PC_ALPHA_MAX: Fx = Fx::from_int(5);
 pub const PC_ALPHA_ROT_MAX: Fx = Fx::from_ratio(2, 100);
+/// The controller grants the client energy every this many cycles (its
+/// grants travel in `answer_twist`, sent every `proto_synchro::TWIST_EVERY`).
+pub const LINK_GRANT_EVERY: u32 = 4;
 /// Coupling force ramp: the envelope goes from 0 to 1 (and 1 to 0) in
 /// `RAMP_US` µs at the most (slew ≤ `MAX_FORCE`/`RAMP_US` = 0.4 N/ms). It is
 /// the link watchdog's fade slope, so the envelope follows the fade exactly.
@@ -319,6 +323,18 @@ pub struct Controller {
     offset_rot: Quat,
     indexing: bool,
     frozen: Pose,
+    /// The controller's port on the link (`link`): energy the handle put
+    /// into the coupling and the coupling gave to the handle, and the
+    /// client's total as received.
+    link: PortLedger,
+    /// Cycles on which the link's passivity controller took force off.
+    link_limited: u64,
+    /// `f·d + τ·e` of the spring at the envelope, J: twice its energy
+    /// when linear (the reservoir keeps a quarter of it).
+    link_keep: Fx,
+    /// Counts the link-passive coupled cycles (grants every
+    /// `LINK_GRANT_EVERY`).
+    link_phase: u32,
 }
 
 /// What `cartesian_control` produces.
@@ -394,6 +410,10 @@ impl Controller {
             offset_rot: Quat::IDENTITY,
             indexing: false,
             frozen: Pose::IDENTITY,
+            link: PortLedger::new(),
+            link_limited: 0,
+            link_keep: Fx::ZERO,
+            link_phase: 0,
         }
     }
 
@@ -427,6 +447,16 @@ impl Controller {
 
     pub fn po_energy(&self) -> Fx {
         self.po_energy
+    }
+
+    /// The controller's port ledger on the link (`link`).
+    pub const fn link(&self) -> &PortLedger {
+        &self.link
+    }
+
+    /// Cycles on which the link's passivity controller took force off.
+    pub const fn link_limited_cycles(&self) -> u64 {
+        self.link_limited
     }
 
     pub fn coupled(&self) -> bool {
@@ -555,6 +585,48 @@ fn fit_scale(base: Fx, add: Fx, lim: Fx) -> Fx {
     room.max(Fx::ZERO).div_sat(add.abs()).min(Fx::ONE)
 }
 
+/// The link's passivity controller (see `cartesian_control`): takes off
+/// `w` the part of its push along the handle's motion (force first, then
+/// torque) that would give the handle more than `ctrl.link`'s budget over
+/// one period.
+///
+/// Returns the port's energy `w·(v_h, ω_h)·T` when it left `w` as it was
+/// (the common case: the caller records it without computing it again).
+fn link_limit(ctrl: &mut Controller, w: &mut Wrench, v_h: Vec3, w_h: Vec3) -> Option<Fx> {
+    let t = ctrl.period;
+    let e_f = w.force.dot(v_h).mul_sat(t);
+    let e_t = w.torque.dot(w_h).mul_sat(t);
+    let (p_f, p_t) = (e_f.max(Fx::ZERO), e_t.max(Fx::ZERO));
+    let mut over = p_f
+        .add_sat(p_t)
+        .sub_sat(ctrl.link.reservoir().max(Fx::ZERO));
+    if over.0 <= 0 {
+        return Some(e_f.add_sat(e_t));
+    }
+    ctrl.link_limited = ctrl.link_limited.saturating_add(1);
+    // A hair more than the excess, for the rounding of the products.
+    over = over.add_sat(Fx(over.0 >> 10)).add_sat(Fx(16));
+    let take_f = over.min(p_f);
+    w.force = w.force.sub(along(v_h, take_f, t));
+    let take_t = over.sub_sat(take_f).min(p_t);
+    w.torque = w.torque.sub(along(w_h, take_t, t));
+    None
+}
+
+/// The vector along `v` whose power on `v` over `t` seconds is `e` (J):
+/// `e/(t·|v|)·v̂`. Zero for `e ≤ 0` or `v` = 0. (Through the unit vector:
+/// `t·|v|²` has too few bits at low speeds.)
+pub fn along(v: Vec3, e: Fx, t: Fx) -> Vec3 {
+    if e.0 <= 0 || t.0 <= 0 {
+        return Vec3::ZERO;
+    }
+    let n = v.norm();
+    if n.0 <= 0 {
+        return Vec3::ZERO;
+    }
+    v.scale(n.recip()).scale(e.div_sat(t).div_sat(n))
+}
+
 /// `cartesian_control`.
 #[allow(clippy::too_many_lines)]
 #[inline(never)]
@@ -572,6 +644,14 @@ pub fn cartesian_control(
     let w_h = ps.twist.angular;
     let mut alarms = 0u32;
     let mut st = 0u32;
+
+    // The client's link energy grants (`link`): a session starts with an
+    // invalid VPr, and both ends' totals with it.
+    if !vpr.valid {
+        ctrl.link = PortLedger::new();
+    } else if vpr.link_energy {
+        ctrl.link.peer.receive(vpr.client_time_us);
+    }
 
     let sf = if config.speed_factor.0 > 0 {
         config.speed_factor
@@ -673,6 +753,8 @@ pub fn cartesian_control(
     ctrl.envelope = env;
 
     let mut handle_wrench = Wrench::ZERO;
+    // The link port's energy as the limiter computed it, with its wrench.
+    let mut link_port: Option<(Fx, Wrench)> = None;
     let mut target = ctrl.held_target;
     // (error, its slipped part) of an active spring; saturation factors.
     let mut spring: Option<(Vec3, Vec3, Vec3, Vec3, Vec3)> = None;
@@ -875,6 +957,34 @@ pub fn cartesian_control(
         w = w
             .saturate(MAX_FORCE.mul_sat(env), MAX_TORQUE.mul_sat(env))
             .0;
+        // Link passivity controller (`link`): with a client that reports
+        // its energy, the coupling may give the handle, over this period,
+        // only the energy the client put into the link (as received) less
+        // what it already gave. The port's power sample is `F·v_h·T` (and
+        // `τ·ω_h·T`); the part of the force along the handle's motion that
+        // would exceed the budget is taken off (`F − c·v̂`, `0 ≤ c ≤ F·v̂`:
+        // never more than the force's own push along the motion, so no
+        // active damping). The allocation below only scales the wrench
+        // down, which keeps the positive parts within the budget.
+        if vpr.link_energy {
+            // ½·(f·d + τ·e) at the envelope: the linear spring's energy,
+            // a little above the saturated one's (no root: any share kept
+            // leaves the link passive; this one is what the spring holds).
+            // Needed when the controller grants: every `LINK_GRANT_EVERY`
+            // cycles (the grants travel in `answer_twist`, every 4th).
+            ctrl.link_phase = ctrl.link_phase.wrapping_add(1);
+            if ctrl.link_phase % LINK_GRANT_EVERY == 0 {
+                ctrl.link_keep =
+                    sw.0.force
+                        .dot(d_eff)
+                        .add_sat(sw.0.torque.dot(e_eff))
+                        .mul_sat(env)
+                        .max(Fx::ZERO);
+            }
+            link_port = link_limit(ctrl, &mut w, v_h, w_h).map(|e| (e, w));
+        } else {
+            ctrl.link_keep = Fx::ZERO;
+        }
         ctrl.prev_target = target;
         ctrl.prev_q = ps.q;
         ctrl.coupled = true;
@@ -886,6 +996,8 @@ pub fn cartesian_control(
         ctrl.coupled = false;
         ctrl.envelope = Fx::ZERO;
         ctrl.prev_wrench = Wrench::ZERO;
+        ctrl.link_keep = Fx::ZERO;
+        ctrl.link.grant_beyond(Fx::ZERO);
     }
 
     // ---- Fixed torques: gravity compensation, then the joint velocity
@@ -1061,6 +1173,26 @@ pub fn cartesian_control(
     {
         // Within the limit up to rounding of the scaled products.
         *o = tf.add_sat(*tc).clamp_abs(*lim);
+    }
+    if ctrl.coupled && vpr.link_energy {
+        // The handle port's energy on the link this period (> 0: the
+        // coupling gave it to the handle): the limiter's when the wrench
+        // reached the motors as it left it.
+        let e_port = match link_port {
+            Some((e, w)) if w == handle_wrench => e,
+            _ => handle_wrench
+                .force
+                .dot(v_h)
+                .mul_sat(ctrl.period)
+                .add_sat(handle_wrench.torque.dot(w_h).mul_sat(ctrl.period)),
+        };
+        ctrl.link.record(e_port);
+        // Grant the client what the reservoir holds beyond half the energy
+        // the spring stores (the handle's share if the spring gives it back):
+        // `link_keep` is twice the linear spring's energy, so keep a quarter.
+        if ctrl.link_phase % LINK_GRANT_EVERY == 0 {
+            ctrl.link.grant_beyond(Fx(ctrl.link_keep.0 >> 2));
+        }
     }
     if ctrl.coupled {
         ctrl.prev_wrench = handle_wrench;

@@ -21,6 +21,7 @@ pub mod effort;
 pub mod fixed;
 pub mod handshake;
 pub mod io;
+pub mod link;
 pub mod mode;
 pub mod platform;
 pub mod position_log;

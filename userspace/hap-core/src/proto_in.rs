@@ -341,6 +341,8 @@ impl ProtoIn {
             self.counters.replies = self.counters.replies.saturating_add(1);
             return out;
         }
+        // A frame of the session: the link is alive, whatever its order.
+        self.vpr.heard_cycle = now_cycle;
         match self.window.check(header.seq) {
             SeqCheck::Newer | SeqCheck::InWindow => {}
             SeqCheck::Duplicate

@@ -166,6 +166,20 @@ pub fn vpr_age_us(vpr: &VpReceived, now_cycle: u64, period_us: u32) -> u64 {
         .saturating_mul(u64::from(period_us))
 }
 
+/// The link watchdog's age at `now_cycle`, µs: the VPr's age
+/// ([`vpr_age_us`]), or, for a client that keeps the link passive
+/// (`link_energy`), the time since the last frame of the session arrived
+/// (`heard_cycle`): a slow link is a live one as long as frames arrive.
+pub fn link_age_us(vpr: &VpReceived, now_cycle: u64, period_us: u32) -> u64 {
+    if vpr.link_energy {
+        now_cycle
+            .saturating_sub(vpr.heard_cycle)
+            .saturating_mul(u64::from(period_us))
+    } else {
+        vpr_age_us(vpr, now_cycle, period_us)
+    }
+}
+
 /// Link watchdog gain for data `age_us` old: 1 up to `LINK_FADE_START_US`,
 /// linear to 0 at `LINK_FADE_END_US`, then 0.
 pub fn link_gain(age_us: u64) -> Fx {
@@ -229,7 +243,7 @@ pub fn estimate_vpr(last: &VpReceived, now_cycle: u64, period_us: u32) -> VprEst
         }
     }
     let extrapolated = age_us > u64::from(period_us);
-    let link_gain = link_gain(age_us);
+    let link_gain = link_gain(link_age_us(last, now_cycle, period_us));
     let mut st = 0;
     if extrapolated {
         st |= status::VPR_EXTRAPOLATED;
@@ -289,6 +303,8 @@ impl Synchro {
                 client_time_us: 0,
                 received_cycle: 0,
                 valid: false,
+                link_energy: false,
+                heard_cycle: 0,
             },
             busy_count: 0,
         }
@@ -376,6 +392,7 @@ pub fn answer_twist_frame(
             alarms: vp.alarms,
             cycle: vp.cycle as u32,
             vpr_seq: vp.vpr_seq,
+            link_energy: vp.link_energy,
         }),
     )
 }
@@ -441,6 +458,8 @@ mod tests {
             client_time_us: 0,
             received_cycle,
             valid: true,
+            link_energy: false,
+            heard_cycle: received_cycle,
         }
     }
 

@@ -44,8 +44,14 @@ pub const VERSION: u8 = 1;
 pub const CTRL_ACK_REQUEST: u16 = 1 << 0;
 /// Control word: this frame is a retransmission (informational).
 pub const CTRL_RETRANSMIT: u16 = 1 << 1;
+/// Control word: on a `VprStream`, the header's timestamp field carries the
+/// client's link energy grants (`link`: the energy it granted the
+/// controller, a running total, u32 in 2⁻²⁰ J, wrapping) instead of its
+/// clock; the controller then keeps the link passive
+/// (`Documentation/control.md`). Ignored on other frames.
+pub const CTRL_LINK_ENERGY: u16 = 1 << 2;
 /// Control word bits that are defined; the others must be zero.
-pub const CTRL_KNOWN: u16 = CTRL_ACK_REQUEST | CTRL_RETRANSMIT;
+pub const CTRL_KNOWN: u16 = CTRL_ACK_REQUEST | CTRL_RETRANSMIT | CTRL_LINK_ENERGY;
 
 /// Tolerance on |q|² of a received quaternion: accepted when
 /// |1 − |q|²| ≤ 1/16 (the controller renormalises).
@@ -154,7 +160,7 @@ impl FrameType {
             FrameType::PowerRequest => 4,
             FrameType::VprStream => POSE_LEN + TWIST_LEN,
             FrameType::Answer => POSE_LEN + WRENCH_LEN + 16,
-            FrameType::AnswerTwist => TWIST_LEN + 16,
+            FrameType::AnswerTwist => TWIST_LEN + 20,
             FrameType::SessionAck => 8,
             FrameType::Ack => 8,
             FrameType::Error => 8,
@@ -219,6 +225,9 @@ pub struct AnswerTwist {
     pub alarms: u32,
     pub cycle: u32,
     pub vpr_seq: u32,
+    /// The controller's link energy grants: the energy it granted the
+    /// client, a running total, 2⁻²⁰ J, wrapping (`link::energy_to_wire`).
+    pub link_energy: u32,
 }
 
 /// One frame with its typed payload.
@@ -598,7 +607,8 @@ fn put_payload(e: &mut Encoder<'_>, frame: &Frame) -> Result<(), XdrError> {
             e.put_u32(a.status)?;
             e.put_u32(a.alarms)?;
             e.put_u32(a.cycle)?;
-            e.put_u32(a.vpr_seq)
+            e.put_u32(a.vpr_seq)?;
+            e.put_u32(a.link_energy)
         }
         Frame::SessionAck {
             client_nonce,
@@ -731,7 +741,7 @@ pub fn encode(h: &FrameHeader, frame: &Frame, out: &mut [u8; MAX_FRAME_LEN]) -> 
 
 /// XDR words of an `Answer`'s payload and of an `AnswerTwist`'s.
 const ANSWER_WORDS: usize = 17;
-const ANSWER_TWIST_WORDS: usize = 10;
+const ANSWER_TWIST_WORDS: usize = 11;
 
 fn answer_words(a: &Answer) -> [u32; ANSWER_WORDS] {
     let (p, o) = (a.handle_pose.position, a.handle_pose.orientation);
@@ -772,7 +782,7 @@ fn answer_twist_words(a: &AnswerTwist) -> [u32; ANSWER_WORDS] {
         a.alarms,
         a.cycle,
         a.vpr_seq,
-        0,
+        a.link_energy,
         0,
         0,
         0,
@@ -925,6 +935,7 @@ fn get_payload(ty: FrameType, d: &mut Decoder<'_>) -> Result<Frame, DecodeError>
                 alarms: d.get_u32()?,
                 cycle: d.get_u32()?,
                 vpr_seq: d.get_u32()?,
+                link_energy: d.get_u32()?,
             })
         }
         FrameType::SessionAck => Frame::SessionAck {
@@ -1040,6 +1051,8 @@ pub fn vpr_from(header: &FrameHeader, frame: &Frame, received_cycle: u64) -> Opt
             client_time_us: header.timestamp_us,
             received_cycle,
             valid: true,
+            link_energy: header.control & CTRL_LINK_ENERGY != 0,
+            heard_cycle: received_cycle,
         }),
         _ => None,
     }
@@ -1114,6 +1127,7 @@ mod tests {
                     alarms: words[1],
                     cycle: words[2],
                     vpr_seq: words[3],
+                    link_energy: words[0] ^ words[3],
                 })
             };
             let fill = next() as u8;
@@ -1202,6 +1216,7 @@ mod tests {
                 alarms: 0,
                 cycle: 78,
                 vpr_seq: 76,
+                link_energy: 0xFFFF_FFFF,
             }),
             Frame::SessionAck {
                 client_nonce: 0xCAFE_F00D,

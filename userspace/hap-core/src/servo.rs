@@ -120,6 +120,7 @@ const VP_ZERO: VpSent = VpSent {
     alarms: 0,
     cycle: 0,
     vpr_seq: 0,
+    link_energy: 0,
 };
 
 impl Servo<Simulator> {
@@ -347,6 +348,7 @@ impl<A: ArmIo> Servo<A> {
             alarms: self.alarms,
             cycle: self.cycle,
             vpr_seq: vpr.seq,
+            link_energy: self.ctrl.link().wire_granted(),
         };
         let mut flags = 0u16;
         for (bit, lf) in [

@@ -20,10 +20,18 @@ pub struct VpReceived {
     pub received_cycle: u64,
     /// False until the first valid VPr frame of the session.
     pub valid: bool,
+    /// The frame carried `CTRL_LINK_ENERGY`: `client_time_us` is the
+    /// client's link energy grants (2⁻²⁰ J, wrapping), and the controller
+    /// keeps the link passive (`link`).
+    pub link_energy: bool,
+    /// Controller time (servo cycle counter) at which the last frame of the
+    /// session arrived, this VPr's or any later one, in order or not (the
+    /// link watchdog's clock when `link_energy`).
+    pub heard_cycle: u64,
 }
 
 /// Words of a published [`VpReceived`] ([`VpReceived::visit_words`]).
-pub const VPR_WORDS: usize = 17;
+pub const VPR_WORDS: usize = 19;
 
 impl VpReceived {
     /// Visit the words of a publication of the VPr (`VPR_WORDS` of them,
@@ -53,6 +61,8 @@ impl VpReceived {
         k.u32(&mut self.client_time_us);
         k.word(&mut self.received_cycle);
         k.bool(&mut self.valid);
+        k.bool(&mut self.link_energy);
+        k.word(&mut self.heard_cycle);
     }
 }
 
@@ -137,6 +147,8 @@ pub struct VpSent {
     pub cycle: u64,
     /// Sequence number of the last VPr used.
     pub vpr_seq: u32,
+    /// The controller's link energy grants (`AnswerTwist::link_energy`).
+    pub link_energy: u32,
 }
 
 #[cfg(test)]
@@ -193,6 +205,8 @@ mod tests {
                 client_time_us: 0x8000_0001,
                 received_cycle: u64::MAX - 1,
                 valid: true,
+                link_energy: true,
+                heard_cycle: u64::MAX - 3,
             },
         ];
         for v in samples {

@@ -90,6 +90,16 @@ fn samples() -> Vec<(FrameHeader, Frame)> {
         (h(11, 7), Frame::PowerRequest(true)),
         (h(12, 7), Frame::VprStream { pose, twist }),
         (
+            // A client that keeps the link passive: its energy grants,
+            // 2.5 J (2.5·2^20 units), in the timestamp field.
+            FrameHeader {
+                control: CTRL_LINK_ENERGY,
+                timestamp_us: 0x0028_0000,
+                ..h(14, 7)
+            },
+            Frame::VprStream { pose, twist },
+        ),
+        (
             h(500, 7),
             Frame::Answer(Answer {
                 handle_pose: pose,
@@ -111,6 +121,8 @@ fn samples() -> Vec<(FrameHeader, Frame)> {
                 alarms: 0,
                 cycle: 123_456,
                 vpr_seq: 12,
+                // 3.5 J put into the channel (2^-20 J units).
+                link_energy: 7 << 19,
             }),
         ),
         (
@@ -144,7 +156,19 @@ fn dumps() -> String {
         let n = encode(&h, &f, &mut buf);
         assert_eq!(decode(&buf[..n]).map(|(h2, _)| h2), Ok(h));
         let t = f.frame_type();
-        writeln!(s, "#### `{}` (0x{:02X}), {} bytes\n", t.name(), t as u8, n).unwrap();
+        let note = if h.control & CTRL_LINK_ENERGY != 0 {
+            ", control `CTRL_LINK_ENERGY`"
+        } else {
+            ""
+        };
+        writeln!(
+            s,
+            "#### `{}` (0x{:02X}){note}, {} bytes\n",
+            t.name(),
+            t as u8,
+            n
+        )
+        .unwrap();
         writeln!(s, "```text").unwrap();
         for (i, chunk) in buf[..n].chunks(16).enumerate() {
             let hex: Vec<String> = chunk.iter().map(|b| format!("{b:02x}")).collect();
@@ -249,4 +273,56 @@ fn stats_counters_match_the_documentation() {
         ["answers_sent", "answers_skipped_latch_busy"],
         "documented keys rendered nowhere in hap-core"
     );
+}
+
+/// The link energy fields: where they travel and what the receiving end
+/// makes of them (`Documentation/protocol.md`, "Link energy").
+#[test]
+fn link_energy_fields_cross_as_documented() {
+    let twist = Twist::default();
+    let pose = Pose::IDENTITY;
+    let h = FrameHeader {
+        control: CTRL_LINK_ENERGY,
+        session: 7,
+        seq: 14,
+        timestamp_us: 0x0028_0000,
+    };
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    let n = encode(&h, &Frame::VprStream { pose, twist }, &mut buf);
+    assert_eq!(n, 72);
+    assert_eq!(buf[4..6], [0x00, 0x04]);
+    assert_eq!(buf[12..16], [0x00, 0x28, 0x00, 0x00]);
+    let (h2, f) = decode(&buf[..n]).unwrap();
+    let v = vpr_from(&h2, &f, 99).unwrap();
+    assert!(v.link_energy);
+    assert_eq!(v.client_time_us, 0x0028_0000);
+    assert_eq!(v.heard_cycle, 99);
+    let mut credit = hap_core::link::PeerTotal::new();
+    assert_eq!(credit.receive(v.client_time_us), Fx::from_ratio(5, 2));
+    // Without the bit the field is the client's clock.
+    let plain = FrameHeader { control: 0, ..h };
+    let n = encode(&plain, &Frame::VprStream { pose, twist }, &mut buf);
+    let (h3, f3) = decode(&buf[..n]).unwrap();
+    assert!(!vpr_from(&h3, &f3, 0).unwrap().link_energy);
+    // answer_twist: the controller's grants, the last payload word.
+    let a = AnswerTwist {
+        link_energy: 0xFFFF_FFFF,
+        ..AnswerTwist::default()
+    };
+    let n = encode(&FrameHeader::default(), &Frame::AnswerTwist(a), &mut buf);
+    assert_eq!(n, 64);
+    assert_eq!(buf[56..60], [0xFF; 4]);
+    match decode(&buf[..n]).unwrap().1 {
+        Frame::AnswerTwist(b) => assert_eq!(b.link_energy, 0xFFFF_FFFF),
+        other => panic!("{other:?}"),
+    }
+    // Wrap: a total of 4096.5 J reads 0.5 J on the wire; a receiver that
+    // had 4095 J credits 1.5 J.
+    let mut r = hap_core::link::PeerTotal::new();
+    for j in [2000, 4000, 4095] {
+        r.receive(hap_core::link::energy_to_wire(Fx::from_int(j)));
+    }
+    let w = hap_core::link::energy_to_wire(Fx::from_ratio(8193, 2));
+    assert_eq!(w, 1 << 19);
+    assert_eq!(r.receive(w), Fx::from_ratio(3, 2));
 }

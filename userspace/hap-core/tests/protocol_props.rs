@@ -115,13 +115,14 @@ fn arb_frame() -> impl Strategy<Value = Frame> {
                 })
             }
         ),
-        (arb_twist(), any::<[u32; 4]>()).prop_map(|(handle_twist, w)| {
+        (arb_twist(), any::<[u32; 5]>()).prop_map(|(handle_twist, w)| {
             Frame::AnswerTwist(AnswerTwist {
                 handle_twist,
                 status: w[0],
                 alarms: w[1],
                 cycle: w[2],
                 vpr_seq: w[3],
+                link_energy: w[4],
             })
         }),
         (any::<u32>(), any::<u32>()).prop_map(|(client_nonce, period_us)| Frame::SessionAck {

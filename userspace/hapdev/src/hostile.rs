@@ -238,7 +238,7 @@ impl Gen {
             _ => {
                 let f = self.request();
                 let mut h = h;
-                h.control = 1 << (2 + self.below(14));
+                h.control = 1 << (3 + self.below(13)); // bits 3–15 are reserved
                 let mut b = enc(&FrameHeader { control: 0, ..h }, &f);
                 b[4..6].copy_from_slice(&h.control.to_be_bytes());
                 fix_crc(&mut b);

@@ -239,6 +239,7 @@ mod tests {
             reply_timeout: Duration::from_millis(150),
             attempts: 2,
             key,
+            ..Options::default()
         }
     }
 

@@ -366,6 +366,7 @@ impl Session {
             reply_timeout: Duration::from_secs_f64(reply_timeout),
             attempts,
             key: psk,
+            ..Options::default()
         };
         let addr = address.to_string();
         let vc = py

@@ -31,6 +31,7 @@ fn quick(key: Option<Psk>) -> Options {
         reply_timeout: Duration::from_millis(200),
         attempts: 3,
         key,
+        ..Options::default()
     }
 }
 

@@ -348,6 +348,7 @@ fn opts(psk: &Psk) -> Options {
         reply_timeout: Duration::from_secs(2),
         attempts: 3,
         key: Some(psk.clone()),
+        ..Options::default()
     }
 }
 

@@ -275,6 +275,7 @@ fn run(
                 alarms: cfg.alarms,
                 cycle,
                 vpr_seq,
+                link_energy: 0,
             };
             send(&Frame::AnswerTwist(tw), seq, session, src, out);
         }

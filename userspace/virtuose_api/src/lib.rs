@@ -49,10 +49,11 @@ use std::time::{Duration, Instant};
 
 use hap_core::config::VirtualObjectParams;
 pub use hap_core::config::{CommandType, IndexingMode};
-use hap_core::fixed::{Pose, Twist};
+use hap_core::fixed::{Fx, Pose, Twist, Wrench};
+use hap_core::link::ClientLink;
 use hap_core::protocol::{
     decode, encode, seq_newer, Answer, DecodeError, Frame, FrameHeader, FrameType,
-    CTRL_ACK_REQUEST, ERROR_NO_SESSION, ERROR_REFUSED, MAX_FRAME_LEN,
+    CTRL_ACK_REQUEST, CTRL_LINK_ENERGY, ERROR_NO_SESSION, ERROR_REFUSED, MAX_FRAME_LEN,
 };
 use hap_core::vp::status;
 
@@ -169,6 +170,12 @@ pub struct Options {
     /// Pre-shared key (protocol v2). `None`: the address's `?key=` or
     /// [`KEY_ENV`], else unauthenticated v1.
     pub key: Option<Psk>,
+    /// Keep the link passive (`hap_core::link`): `get_force` returns the
+    /// coupling wrench less what the controller's energy grants do not
+    /// cover, `set_position` records the step and sends this end's grants
+    /// (`CTRL_LINK_ENERGY`); the controller then does the same at the
+    /// handle and keeps the coupling on over a slow link. Off by default.
+    pub link_passivity: bool,
 }
 
 impl Default for Options {
@@ -177,6 +184,7 @@ impl Default for Options {
             reply_timeout: Duration::from_millis(250),
             attempts: 4,
             key: None,
+            link_passivity: false,
         }
     }
 }
@@ -263,6 +271,12 @@ struct State {
     /// Per-sample round trips, when recording (`record_rtt`).
     rtt_log: Option<Vec<RttSample>>,
     rtt_overflow: u64,
+    /// This end of the link's passivity (`Options::link_passivity`), in the
+    /// controller's units.
+    link: ClientLink,
+    /// The time step given to `set_time_step`, s (the controller's default
+    /// until then).
+    time_step: Fx,
 }
 
 struct Inner {
@@ -294,13 +308,18 @@ impl Inner {
 
     /// Encode with hap-core and send; returns the sequence number used.
     fn send(&self, frame: &Frame, control: u16) -> Result<u32> {
+        self.send_stamped(frame, control, self.now_us())
+    }
+
+    /// [`Inner::send`] with the header's timestamp field given.
+    fn send_stamped(&self, frame: &Frame, control: u16, timestamp_us: u32) -> Result<u32> {
         let seq = self.next_seq();
         let session = self.lock().session;
         let h = FrameHeader {
             control,
             session,
             seq,
-            timestamp_us: self.now_us(),
+            timestamp_us,
         };
         let mut buf = [0u8; MAX_FRAME_LEN];
         let n = match &self.auth {
@@ -536,6 +555,8 @@ impl VirtContext {
                 answer_gen: 0,
                 rtt_log: None,
                 rtt_overflow: 0,
+                link: ClientLink::new(),
+                time_step: Fx::from_ratio(1, 1000),
             }),
             cond: Condvar::new(),
             stop: AtomicBool::new(false),
@@ -689,7 +710,10 @@ impl VirtContext {
                 "time step {dt} not in (0, 1] s"
             )));
         }
-        self.request(Frame::SetTimeStep(conv::fx("time step", dt)?))
+        let step = conv::fx("time step", dt)?;
+        self.request(Frame::SetTimeStep(step))?;
+        self.inner.lock().time_step = step;
+        Ok(())
     }
 
     pub fn set_indexing_mode(&self, mode: IndexingMode) -> Result<()> {
@@ -805,19 +829,30 @@ impl VirtContext {
 
     /// Pose of the virtual object, `[x,y,z,qx,qy,qz,qw]`: streams one
     /// VprStream frame (pose + the last speed given). Not acknowledged.
+    ///
+    /// With [`Options::link_passivity`], the step that the last
+    /// [`get_force`](Self::get_force) began is recorded, and the frame
+    /// carries this end's energy grants (`CTRL_LINK_ENERGY`).
     pub fn set_position(&self, pose: &[f32; 7]) -> Result<()> {
         self.check_open()?;
         let pose: Pose = conv::pose_from("position", pose)?;
-        self.inner.send(
-            &Frame::VprStream {
-                pose,
-                twist: *match self.speed.lock() {
-                    Ok(g) => g,
-                    Err(p) => p.into_inner(),
-                },
+        let frame = Frame::VprStream {
+            pose,
+            twist: *match self.speed.lock() {
+                Ok(g) => g,
+                Err(p) => p.into_inner(),
             },
-            0,
-        )?;
+        };
+        if self.opts.link_passivity {
+            let granted = {
+                let mut st = self.inner.lock();
+                st.link.commit();
+                st.link.wire_granted()
+            };
+            self.inner.send_stamped(&frame, CTRL_LINK_ENERGY, granted)?;
+        } else {
+            self.inner.send(&frame, 0)?;
+        }
         Ok(())
     }
 
@@ -841,8 +876,61 @@ impl VirtContext {
     }
 
     /// Wrench to apply to the virtual object `[fx,fy,fz,tx,ty,tz]`.
+    ///
+    /// With [`Options::link_passivity`]: the coupling wrench less the push
+    /// along the object's motion (the speed last given to
+    /// [`set_speed`](Self::set_speed)) that the controller's energy grants
+    /// do not cover over one time step ([`set_time_step`](Self::set_time_step)),
+    /// to apply until the next [`set_position`](Self::set_position).
     pub fn get_force(&self) -> Result<[f32; 6]> {
-        self.with_answer(|a, _| conv::wrench_to(&a.coupling_wrench))
+        if !self.opts.link_passivity {
+            return self.with_answer(|a, _| conv::wrench_to(&a.coupling_wrench));
+        }
+        self.check_open()?;
+        let twist = *match self.speed.lock() {
+            Ok(g) => g,
+            Err(p) => p.into_inner(),
+        };
+        let mut st = self.inner.lock();
+        let Some(a) = st.answer else {
+            return Err(VirtError::NoData);
+        };
+        // In the controller's units (the grants' unit): client force =
+        // force factor × arm force, client length = speed factor × arm
+        // length, client torque = both factors × arm torque.
+        let (kf, ks) = (self.force_factor, self.speed_factor);
+        let w = conv::wrench_to(&a.coupling_wrench);
+        let t = conv::twist_to(&twist);
+        let arm_w = conv::wrench_from(&[
+            w[0] / kf,
+            w[1] / kf,
+            w[2] / kf,
+            w[3] / (kf * ks),
+            w[4] / (kf * ks),
+            w[5] / (kf * ks),
+        ]);
+        let arm_t = conv::twist_from(
+            "speed",
+            &[t[0] / ks, t[1] / ks, t[2] / ks, t[3], t[4], t[5]],
+        )?;
+        let dt = st.time_step;
+        let out: Wrench = st.link.force(&arm_w, &arm_t, dt);
+        let o = conv::wrench_to(&out);
+        Ok([
+            o[0] * kf,
+            o[1] * kf,
+            o[2] * kf,
+            o[3] * kf * ks,
+            o[4] * kf * ks,
+            o[5] * kf * ks,
+        ])
+    }
+
+    /// This end's link ledger (`Options::link_passivity`): its port's
+    /// energy in and out, its grants and the controller's, J (controller
+    /// units).
+    pub fn link_ledger(&self) -> hap_core::link::PortLedger {
+        self.inner.lock().link.ledger
     }
 
     /// Raw `hap_core::vp::status` bits of the last answer.
@@ -1088,8 +1176,10 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
             } => {
                 if client_nonce == st.session_nonce {
                     st.session_ack = Some((h.session, period_us));
-                    // A new session: controller sequence numbers restart.
+                    // A new session: controller sequence numbers restart,
+                    // and both ends' energy totals.
                     st.last_seq = None;
+                    st.link.reset();
                 }
             }
             Frame::Ack { acked_seq, .. } => {
@@ -1135,6 +1225,7 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
                         on_answer(&mut st, a);
                     }
                     Frame::AnswerTwist(t) => {
+                        st.link.on_peer_total(t.link_energy);
                         st.twist = t.handle_twist;
                         if let Some(a) = st.answer.as_mut() {
                             a.status = t.status;

@@ -114,6 +114,7 @@ fn quick(key: Option<Psk>) -> Options {
         reply_timeout: Duration::from_millis(150),
         attempts: 2,
         key,
+        ..Options::default()
     }
 }
 

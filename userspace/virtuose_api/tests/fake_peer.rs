@@ -213,3 +213,61 @@ fn silent_controller_times_out_and_bad_arguments_are_refused() {
     let e = vc.set_time_step(2.0).unwrap_err();
     assert!(e.to_string().contains("time step"), "{e}");
 }
+
+/// With `link_passivity`, a controller that grants no energy (the fake
+/// one's `answer_twist` carries 0) never gets to push the object along its
+/// motion: `get_force` takes that part off; the same run without the
+/// option is pushed. The force against the motion goes through, and what
+/// the object put in is granted back on the next `vpr_stream`.
+#[test]
+fn link_passivity_pushes_the_object_only_with_granted_energy() {
+    let peer = FakePeer::start(FakePeerConfig {
+        answer_every_period: true,
+        twist_every: 4,
+        amplitude: [0.0; 3],
+        ..FakePeerConfig::default()
+    })
+    .unwrap();
+    let dt = 0.001f32;
+    for link_passivity in [false, true] {
+        let mut vc = VirtContext::open_with(
+            &peer.address(),
+            Options {
+                link_passivity,
+                ..quick()
+            },
+        )
+        .unwrap();
+        vc.set_time_step(dt).unwrap();
+        vc.set_command_type(CommandType::VirtMech).unwrap();
+        vc.attach_vo(0.2, [0.001; 3]).unwrap();
+        vc.set_power_on(true).unwrap();
+        // The object 5 cm from the handle: the spring pulls it back.
+        let pos = [0.05f32, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+        let (mut along, mut against) = (0.0f64, 0.0f64);
+        for k in 0..300 {
+            // Moving toward the handle (along the pull), then away.
+            let v = if k < 150 { -0.1f32 } else { 0.1 };
+            vc.set_speed(&[v, 0.0, 0.0, 0.0, 0.0, 0.0]).unwrap();
+            vc.set_position(&pos).unwrap();
+            vc.wait_answer(Duration::from_millis(20));
+            let Ok(f) = vc.get_force() else { continue };
+            let p = f64::from(f[0]) * f64::from(v) * f64::from(dt);
+            if k < 150 {
+                along += p;
+            } else {
+                against += p;
+            }
+        }
+        let ledger = vc.link_ledger();
+        if link_passivity {
+            assert!(along <= 1e-6, "pushed along the motion: {along} J");
+            assert!(against < -1e-3, "no force against the motion: {against} J");
+            assert!(ledger.energy_in.to_f64() > 1e-3, "{ledger:?}");
+            assert_eq!(ledger.granted, ledger.energy_in.sub_sat(ledger.energy_out));
+        } else {
+            assert!(along > 1e-3, "the plain run was not pushed: {along} J");
+        }
+        vc.close().unwrap();
+    }
+}

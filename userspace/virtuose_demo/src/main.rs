@@ -55,6 +55,10 @@ struct Args {
     /// Reply timeout of acknowledged requests, ms.
     #[arg(long, default_value_t = 250)]
     timeout_ms: u64,
+    /// Keep the link passive (time-domain passivity across the network,
+    /// `Options::link_passivity`): for a slow link (WAN, cellular).
+    #[arg(long)]
+    link_passivity: bool,
     /// Client request interval in µs (overrides --rate; e.g. 3000 for the
     /// spec's 1 sample / 3 ms).
     #[arg(long, value_parser = clap::value_parser!(u32).range(200..=100_000))]
@@ -379,6 +383,7 @@ fn run(args: Args) -> Result<(), String> {
         reply_timeout: Duration::from_millis(args.timeout_ms),
         attempts: 4,
         key,
+        link_passivity: args.link_passivity,
     };
     println!("connecting to {server}");
     let mut vc = VirtContext::open_with(&server, opts).map_err(|e| format!("{server}: {e}"))?;
@@ -831,6 +836,7 @@ fn open_hand(
         reply_timeout: Duration::from_millis(args.timeout_ms),
         attempts: 4,
         key,
+        link_passivity: args.link_passivity,
     };
     println!("arm {i}: connecting to {server}");
     let mut vc = VirtContext::open_with(&server, opts).map_err(|e| format!("{server}: {e}"))?;

@@ -477,6 +477,8 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
                 client_time_us: 0,
                 received_cycle: now,
                 valid: true,
+                link_energy: false,
+                heard_cycle: now,
             };
         }
         if let Some(k) = cut_at {
