@@ -22,10 +22,14 @@
 #                      [--min-answers N] [--period-us N] [--client-window N] [--results DIR]
 # Defaults: --rtt-ms 300 --jitter-pct 50 --loss-pct 10 (the slow link).
 # --client-window: the client's VPr pacing (virtuose_demo --window; 0: none).
+# --link-passivity: the client keeps the link passive (time-domain
+# passivity across the link, control.md): it applies the force at any
+# delay, and the run also asserts that it did in every cycle, that its end
+# of the link created no energy, and that the coupled sphere met the scene.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 . "$ROOT/scripts/lib.sh"
-rtt_ms=300; jitter=50; loss=10; dup=0; reorder=0; seed=1; window=4
+rtt_ms=300; jitter=50; loss=10; dup=0; reorder=0; seed=1; window=4; link_flag=""
 duration=15; min_answers=3000; period_us=1000; results="$ROOT/build/e2e-netem"; kflag=""
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -41,6 +45,7 @@ while [ $# -gt 0 ]; do
     --period-us) period_us=$2; shift ;;
     --results) results=$2; shift ;;
     --stock) kflag=--stock ;;
+    --link-passivity) link_flag=--link-passivity ;;
     *) die "unknown argument $1" ;;
   esac
   shift
@@ -86,7 +91,7 @@ echo "# $(head -1 "$results/netem.out")"
 # The reply timeout of acknowledged requests covers the slowest round trip
 # the proxy can make (rtt + jitter), with margin.
 tmo=$(awk -v r="$rtt_ms" -v j="$jitter" 'BEGIN { t = 2 * r * (1 + j / 100) + 500; if (t < 1000) t = 1000; printf "%d", t }')
-"$demo" --server "${paddr/:/#}" --key "$key" --headless --timeout-ms "$tmo" --window "$window" --duration "$duration" --answers "$min_answers" \
+"$demo" --server "${paddr/:/#}" --key "$key" --headless --timeout-ms "$tmo" --window "$window" $link_flag --duration "$duration" --answers "$min_answers" \
   --max-duration "$max_s" --results "$results" > "$results/client.txt" 2>&1
 crc=$?
 for _ in $(seq 1200); do kill -0 "$qpid" 2>/dev/null || break; sleep 0.1; done
@@ -121,6 +126,7 @@ gaps=$(awk -F, '$1 == "to_server" && ($5 == "sent" || $5 == "sent_copy") { print
 echo "# FIGURE proxy to_server gaps between datagrams sent (real time): $gaps"
 echo "# FIGURE module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses), VPr extrapolated $(gv hap_stats.txt vpr_extrapolated), frames in $(gv hap_stats.txt frames_in), out $(gv hap_stats.txt frames_out); position log: $(av link_cycles) cycles powered in session with a VPr, at full link gain $(av link_full_gain_fraction), $(av link_fades) fades, lowest gain $(av link_gain_min), oldest VPr $(av vpr_age_max_ms) ms (fade events counted unpowered too: $(av link_fading_events))"
 
+echo "# FIGURE client link ledger (J): its port put in $(sv link_energy_in_j), took out $(sv link_energy_out_j); granted the controller $(sv link_granted_j), received $(sv link_received_j); reservoir $(sv link_reservoir_j)"
 [ "$crc" = 0 ] && ok "the test client ran through the proxy against the guest" || nok "the test client failed (exit $crc): $(tail -3 "$results/client.txt")"
 [ "$nrc" = 0 ] && ok "the proxy ended cleanly" || nok "the proxy failed (exit $nrc): $(tail -3 "$results/netem.err")"
 check_num "answers received (at least $min_answers, at most ${max_s} s)" "$(sv answers)" '>=' "$min_answers"
@@ -129,6 +135,12 @@ check_num "module: exactly one session opened" "$(gv hap_stats.txt sessions_open
 # The done-when: coupled over the whole run.
 check_num "module: the handle stayed coupled (cycles powered in session with a VPr at full link gain, fraction)" "$(av link_full_gain_fraction)" '==' 1
 check_num "module: no fade while powered in session" "$(av link_fades)" '==' 0
+if [ -n "$link_flag" ]; then
+  check_num "client: the force applied in every cycle (none dropped for age)" "$(sv stale_cycles)" '==' 0
+  check_num "client: its end of the link created no energy (reservoir, J)" "$(sv link_reservoir_j)" '>=' -0.000001
+  check_num "client: the controller's grants reached it (J)" "$(sv link_received_j)" '>' 0
+  check_num "client: the coupled sphere met the walls or the free mass (cycles)" "$(sum "$(sv wall_contact_cycles)" "$(sv free_mass_contact_cycles)")" '>' 0
+fi
 check_num "module: no deadline miss" "$(gv hap_stats.txt misses)" '==' 0
 check_num "module: no fail-safe" "$(gv hap_stats.txt fail_safe)" '==' 0
 check_num "module: nothing malformed reached it" "$(gv hap_stats.txt frames_rejected)" '==' 0

@@ -492,7 +492,10 @@ fn run(args: Args) -> Result<(), String> {
     let mut held = 0u64;
     let mut silent = false;
     let mut stale = 0u64;
-    let answers0 = vc.link_stats().answers;
+    // Answers the controller sent for our frames: accepted, and those that
+    // arrived behind a newer one (a reordering link) and were dropped.
+    let answered = |ls: &virtuose_api::LinkStats| ls.answers + ls.stale;
+    let answers0 = answered(&vc.link_stats());
 
     loop {
         let t = t0.elapsed().as_secs_f64();
@@ -521,9 +524,12 @@ fn run(args: Args) -> Result<(), String> {
         // last echoed one plus the time since the last answer: the
         // controller's own link-fade horizon), the loop is delayed beyond
         // what the drag keeps passive (2·drag/K ≈ 0.1 s): it is not applied
-        // and the sphere is left to its drag (`stale_cycles`).
+        // and the sphere is left to its drag (`stale_cycles`). With
+        // `--link-passivity` the library's link limiter keeps the client's
+        // end passive at any delay (the force it returns is already what the
+        // link's energy pays for): applied whatever its age.
         let loop_age_s = vc.link_stats().rtt_ms_last / 1000.0 + (t - last_answer_t);
-        let fresh = loop_age_s <= 0.1;
+        let fresh = args.link_passivity || loop_age_s <= 0.1;
         let applied = if fresh { force } else { V3::zeros() };
         if !fresh {
             stale += 1;
@@ -555,7 +561,7 @@ fn run(args: Args) -> Result<(), String> {
         // no longer passive: the sphere runs away. So stay at most
         // `window` frames ahead of the answers; the newest pose goes out
         // with the next answer.
-        let ahead = requests.saturating_sub(vc.link_stats().answers.saturating_sub(answers0));
+        let ahead = requests.saturating_sub(answered(&vc.link_stats()).saturating_sub(answers0));
         if args.window == 0 || ahead < args.window {
             // A sphere has no orientation to couple: it takes the handle's,
             // so the coupling is a pure translation.
@@ -743,6 +749,16 @@ fn run(args: Args) -> Result<(), String> {
     );
     let _ = writeln!(summary, "controller_silent: {}", u8::from(silent));
     let _ = writeln!(summary, "stale_cycles: {stale}");
+    // The client's end of the link (with --link-passivity; 0 otherwise):
+    // what its port put in and took out, what it granted the controller and
+    // the controller granted it, and its reservoir (≥ 0: this end created
+    // no energy).
+    let ledger = vc.link_ledger();
+    let _ = writeln!(summary, "link_energy_in_j: {:.9}", ledger.energy_in.to_f64());
+    let _ = writeln!(summary, "link_energy_out_j: {:.9}", ledger.energy_out.to_f64());
+    let _ = writeln!(summary, "link_granted_j: {:.9}", ledger.granted.to_f64());
+    let _ = writeln!(summary, "link_received_j: {:.9}", ledger.peer.total().to_f64());
+    let _ = writeln!(summary, "link_reservoir_j: {:.9}", ledger.reservoir().to_f64());
     let _ = writeln!(summary, "handle_travel_m: {handle_travel:.5}");
     let _ = writeln!(summary, "coupled_travel_m: {coupled_travel:.5}");
     let _ = writeln!(summary, "wall_contact_cycles: {wall_cycles}");
@@ -843,7 +859,8 @@ fn open_hand(
     init_at(&mut vc, dt as f32, 0.5, HANDS_AT[i])
         .map_err(|e| format!("arm {i}: initialisation: {e}"))?;
     fresh_answer(&vc, Duration::from_secs(2));
-    let answers0 = vc.link_stats().answers;
+    let ls0 = vc.link_stats();
+    let answers0 = ls0.answers + ls0.stale;
     Ok(Hand {
         vc,
         force: V3::zeros(),
@@ -855,7 +872,7 @@ fn open_hand(
         handle_q: [0.0, 0.0, 0.0, 1.0],
         requests: 0,
         answers0,
-        last_answers: answers0,
+        last_answers: ls0.answers,
         last_answer_t: 0.0,
     })
 }
@@ -912,9 +929,14 @@ fn run_bimanual(args: &Args, server2: &str, stop: &AtomicBool) -> Result<(), Str
                 (h.last_answers, h.last_answer_t) = (answers, t);
             }
             // As in the one-arm scene: a force older than 100 ms is not
-            // applied (a delayed spring is not passive).
+            // applied (a delayed spring is not passive), unless the link
+            // limiter keeps the client's end passive.
             let age = h.vc.link_stats().rtt_ms_last / 1000.0 + (t - h.last_answer_t);
-            *c = if age <= 0.1 { h.force } else { V3::zeros() };
+            *c = if args.link_passivity || age <= 0.1 {
+                h.force
+            } else {
+                V3::zeros()
+            };
         }
         if hands.iter().any(|h| t - h.last_answer_t > 5.0) {
             println!("no answer for 5 s from an arm: the controller stopped answering");
@@ -934,9 +956,10 @@ fn run_bimanual(args: &Args, server2: &str, stop: &AtomicBool) -> Result<(), Str
                 0.0,
                 0.0,
             ]);
+            let ls = h.vc.link_stats();
             let ahead = h
                 .requests
-                .saturating_sub(h.vc.link_stats().answers.saturating_sub(h.answers0));
+                .saturating_sub((ls.answers + ls.stale).saturating_sub(h.answers0));
             if args.window == 0 || ahead < args.window {
                 let q = h.handle_q;
                 let _ = h.vc.set_position(&[
