@@ -13,8 +13,10 @@ HAP_RUSTC=/usr/bin/rustc
 export PATH="$HAP_TOOLS/bin:$PATH"
 
 # What counts as a kernel problem in a guest log (grep -E): panics, oopses,
-# warnings, lockdep and atomic-sleep splats, sanitizers, Rust panics.
-HAP_SPLAT_RE='Kernel panic|Oops|WARNING:|BUG:|Call Trace|possible (circular|recursive) locking|sleeping function called from invalid context|general protection fault|KASAN|UBSAN|rust_panic|panicked at'
+# warnings, lockdep and atomic-sleep splats, sanitizers, Rust panics. Each
+# pattern holds a space or a colon, so that the base64 of a guest log dump
+# (the simulator log) never matches one.
+HAP_SPLAT_RE='Kernel panic|Oops: |WARNING:|BUG:|Call Trace|possible (circular|recursive) locking|sleeping function called from invalid context|general protection fault|KASAN: |UBSAN: |rust_panic|panicked at'
 
 # hap_usage: print the calling script's header comment (its --help).
 hap_usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; }
