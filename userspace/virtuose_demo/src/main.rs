@@ -754,11 +754,27 @@ fn run(args: Args) -> Result<(), String> {
     // the controller granted it, and its reservoir (≥ 0: this end created
     // no energy).
     let ledger = vc.link_ledger();
-    let _ = writeln!(summary, "link_energy_in_j: {:.9}", ledger.energy_in.to_f64());
-    let _ = writeln!(summary, "link_energy_out_j: {:.9}", ledger.energy_out.to_f64());
+    let _ = writeln!(
+        summary,
+        "link_energy_in_j: {:.9}",
+        ledger.energy_in.to_f64()
+    );
+    let _ = writeln!(
+        summary,
+        "link_energy_out_j: {:.9}",
+        ledger.energy_out.to_f64()
+    );
     let _ = writeln!(summary, "link_granted_j: {:.9}", ledger.granted.to_f64());
-    let _ = writeln!(summary, "link_received_j: {:.9}", ledger.peer.total().to_f64());
-    let _ = writeln!(summary, "link_reservoir_j: {:.9}", ledger.reservoir().to_f64());
+    let _ = writeln!(
+        summary,
+        "link_received_j: {:.9}",
+        ledger.peer.total().to_f64()
+    );
+    let _ = writeln!(
+        summary,
+        "link_reservoir_j: {:.9}",
+        ledger.reservoir().to_f64()
+    );
     let _ = writeln!(summary, "handle_travel_m: {handle_travel:.5}");
     let _ = writeln!(summary, "coupled_travel_m: {coupled_travel:.5}");
     let _ = writeln!(summary, "wall_contact_cycles: {wall_cycles}");
