@@ -1001,8 +1001,8 @@ pub fn cartesian_control(
     }
 
     // ---- Fixed torques: gravity compensation, then the joint velocity
-    // brake (motor protection) and the Cartesian brake with the motor
-    // torque that is left.
+    // brake (motor protection); the Cartesian brake comes after the
+    // coupling's allocation, with the motor torque the coupling left.
     let mut fixed = JOINTS_ZERO;
     if ctrl.gravity_compensation {
         for ((t, gr), lim) in fixed
@@ -1049,8 +1049,10 @@ pub fn cartesian_control(
     let v_lin = if fast { v_h.norm() } else { Fx::ZERO };
 
     // ---- Coupling torques: force first. The force's joint torques J_vᵀf
-    // get the largest scale s_f ≤ 1 the motors' room (left by the fixed
-    // torques) allows, then the torque's J_ωᵀτ the largest s_t that still
+    // get the largest scale s_f ≤ 1 the motors' room (left by gravity
+    // compensation and the joint brake) allows (with the torque in full
+    // where that gives the force more), then the torque's J_ωᵀτ the largest
+    // s_t that still
     // fits: the force keeps its direction and gets all the device has; the
     // torque gets what is left. Both are scaled by the speed scale where the
     // coupling would drive a fast joint or the handle along its motion.
