@@ -43,6 +43,9 @@ fn main() {
     let mut args = std::env::args().skip(1);
     let runs: u64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(6);
     let cycles: u64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(20_000);
+    // Where to write the wall probe's plot (felt stiffness and drift per
+    // round trip), if given.
+    let plot_dir = args.next();
     println!(
         "mode: host native, deterministic; {runs} runs × {cycles} cycles per case, 1 ms period"
     );
@@ -158,6 +161,7 @@ fn main() {
         "{:>7} {:>6} {:>18} {:>16} {:>10} {:>13}",
         "rtt_ms", "PC", "felt_stiff_N_per_m", "penetr_10N_mm", "drift_mm", "channel_min_J"
     );
+    let mut plotted = Vec::new();
     for &rtt in &[0.0, 20.0, 100.0, 300.0, 1000.0] {
         for pc in [true, false] {
             if !pc && rtt != 300.0 {
@@ -175,6 +179,68 @@ fn main() {
                 p.drift * 1000.0,
                 p.channel_min
             );
+            if pc {
+                plotted.push((rtt, p.stiffness, p.drift * 1000.0));
+            }
         }
     }
+    if let Some(dir) = plot_dir {
+        let path = format!("{dir}/link-probe.svg");
+        std::fs::write(&path, probe_svg(&plotted)).expect("write the wall probe's plot");
+        println!("plot: {path}");
+    }
+}
+
+/// The wall probe per round trip as one small SVG: felt stiffness (N/m,
+/// left axis, bars) and the handle–object drift (mm, right axis, dots).
+fn probe_svg(points: &[(f64, f64, f64)]) -> String {
+    let (w, h) = (640.0, 400.0);
+    let (x0, y0, x1, y1) = (70.0, 30.0, 570.0, 340.0);
+    let kmax = points.iter().map(|p| p.1).fold(1.0, f64::max) * 1.1;
+    let dmax = points.iter().map(|p| p.2).fold(1.0, f64::max) * 1.1;
+    let n = points.len().max(1) as f64;
+    let slot = (x1 - x0) / n;
+    let ky = |k: f64| y1 - k / kmax * (y1 - y0);
+    let dy = |d: f64| y1 - d / dmax * (y1 - y0);
+    let mut s = format!("<svg xmlns='http://www.w3.org/2000/svg' width='{w}' height='{h}' font-family='sans-serif' font-size='12'>\n<rect width='100%' height='100%' fill='white'/>\n");
+    s += &format!("<text x='{}' y='18' text-anchor='middle'>Wall probe across the link (±50 % jitter, 10 % loss; 0 ms: none): felt stiffness and drift</text>\n", w / 2.0);
+    s += &format!("<line x1='{x0}' y1='{y1}' x2='{x1}' y2='{y1}' stroke='black'/><line x1='{x0}' y1='{y0}' x2='{x0}' y2='{y1}' stroke='#1f77b4'/><line x1='{x1}' y1='{y0}' x2='{x1}' y2='{y1}' stroke='#d62728'/>\n");
+    for i in 0..=4 {
+        let k = kmax * i as f64 / 4.0;
+        let d = dmax * i as f64 / 4.0;
+        s += &format!(
+            "<text x='{}' y='{}' text-anchor='end' fill='#1f77b4'>{k:.0}</text>\n",
+            x0 - 5.0,
+            ky(k) + 4.0
+        );
+        s += &format!(
+            "<text x='{}' y='{}' fill='#d62728'>{d:.0}</text>\n",
+            x1 + 5.0,
+            dy(d) + 4.0
+        );
+    }
+    for (i, (rtt, k, d)) in points.iter().enumerate() {
+        let cx = x0 + slot * (i as f64 + 0.5);
+        s += &format!(
+            "<rect x='{}' y='{}' width='{}' height='{}' fill='#1f77b4' opacity='0.6'/>\n",
+            cx - slot * 0.3,
+            ky(*k),
+            slot * 0.6,
+            y1 - ky(*k)
+        );
+        s += &format!("<circle cx='{cx}' cy='{}' r='5' fill='#d62728'/>\n", dy(*d));
+        s += &format!(
+            "<text x='{cx}' y='{}' text-anchor='middle'>{rtt:.0} ms</text>\n",
+            y1 + 16.0
+        );
+    }
+    s += &format!(
+        "<text x='{}' y='{}' text-anchor='middle'>round trip</text>\n",
+        (x0 + x1) / 2.0,
+        h - 20.0
+    );
+    s += &format!("<text x='15' y='{}' transform='rotate(-90 15 {})' text-anchor='middle' fill='#1f77b4'>felt stiffness (N/m), bars</text>\n", (y0 + y1) / 2.0, (y0 + y1) / 2.0);
+    s += &format!("<text x='{}' y='{}' transform='rotate(90 {} {})' text-anchor='middle' fill='#d62728'>drift handle–object (mm), dots</text>\n", w - 20.0, (y0 + y1) / 2.0, w - 20.0, (y0 + y1) / 2.0);
+    s += "</svg>\n";
+    s
 }
