@@ -331,6 +331,23 @@ fn fresh_answer(vc: &VirtContext, timeout: Duration) {
     }
 }
 
+/// The client library's options from the command line (key file, reply
+/// time-out, link passivity), for every arm.
+fn client_options(args: &Args) -> Result<Options, String> {
+    let key = match &args.key {
+        Some(p) => {
+            Some(virtuose_api::Psk::load(p).map_err(|e| format!("key {}: {e}", p.display()))?)
+        }
+        None => None,
+    };
+    Ok(Options {
+        reply_timeout: Duration::from_millis(args.timeout_ms),
+        attempts: 4,
+        key,
+        link_passivity: args.link_passivity,
+    })
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
     match run(args) {
@@ -373,18 +390,7 @@ fn run(args: Args) -> Result<(), String> {
         None => 1.0 / args.rate as f64,
     };
     let mut world = World::default();
-    let key = match &args.key {
-        Some(p) => {
-            Some(virtuose_api::Psk::load(p).map_err(|e| format!("key {}: {e}", p.display()))?)
-        }
-        None => None,
-    };
-    let opts = Options {
-        reply_timeout: Duration::from_millis(args.timeout_ms),
-        attempts: 4,
-        key,
-        link_passivity: args.link_passivity,
-    };
+    let opts = client_options(&args)?;
     println!("connecting to {server}");
     let mut vc = VirtContext::open_with(&server, opts).map_err(|e| format!("{server}: {e}"))?;
     let ls = vc.link_stats();
@@ -858,18 +864,7 @@ fn open_hand(
     } else {
         addr.to_string()
     };
-    let key = match &args.key {
-        Some(p) => {
-            Some(virtuose_api::Psk::load(p).map_err(|e| format!("key {}: {e}", p.display()))?)
-        }
-        None => None,
-    };
-    let opts = Options {
-        reply_timeout: Duration::from_millis(args.timeout_ms),
-        attempts: 4,
-        key,
-        link_passivity: args.link_passivity,
-    };
+    let opts = client_options(args)?;
     println!("arm {i}: connecting to {server}");
     let mut vc = VirtContext::open_with(&server, opts).map_err(|e| format!("{server}: {e}"))?;
     init_at(&mut vc, dt as f32, 0.5, HANDS_AT[i])
