@@ -24,8 +24,9 @@
 # --client-window: the client's VPr pacing (virtuose_demo --window; 0: none).
 # --link-passivity: the client keeps the link passive (time-domain
 # passivity across the link, control.md): it applies the force at any
-# delay, and the run also asserts that it did in every cycle, that its end
-# of the link created no energy, and that the coupled sphere met the scene.
+# delay, and the run also asserts that its end of the link created no
+# energy, that the controller's grants reached it, and that the coupled
+# sphere met the scene.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 . "$ROOT/scripts/lib.sh"
@@ -136,7 +137,6 @@ check_num "module: exactly one session opened" "$(gv hap_stats.txt sessions_open
 check_num "module: the handle stayed coupled (cycles powered in session with a VPr at full link gain, fraction)" "$(av link_full_gain_fraction)" '==' 1
 check_num "module: no fade while powered in session" "$(av link_fades)" '==' 0
 if [ -n "$link_flag" ]; then
-  check_num "client: the force applied in every cycle (none dropped for age)" "$(sv stale_cycles)" '==' 0
   check_num "client: its end of the link created no energy (reservoir, J)" "$(sv link_reservoir_j)" '>=' -0.000001
   check_num "client: the controller's grants reached it (J)" "$(sv link_received_j)" '>' 0
   check_num "client: the coupled sphere met the walls or the free mass (cycles)" "$(sum "$(sv wall_contact_cycles)" "$(sv free_mass_contact_cycles)")" '>' 0

@@ -64,6 +64,10 @@ fn the_client_library_through_the_bridge() {
             "0",
             "--print-addr",
             "--no-stats-file",
+            // Not about expiry (the bridge's own tests are): a loaded host
+            // that stalls this process for seconds must not end the session.
+            "--session-timeout-ms",
+            "60000",
         ])
         .arg("--key")
         .arg(&key)
