@@ -55,6 +55,9 @@ pub const V_BRAKE_ONSET: Fx = Fx::ONE;
 /// Handle speed at which the coupling no longer pushes along the motion,
 /// m/s: its scale falls linearly from 1 at `V_BRAKE_ONSET` to 0 here.
 pub const V_COUPLING_STOP: Fx = Fx::from_ratio(15, 10);
+/// cos θ from which the speed scale of the coupling's push along a fast
+/// motion acts in full (θ ≤ 75.5°); below it the scale fades to 1 at 90°.
+pub const PUSH_COS_FULL: Fx = Fx::from_ratio(1, 4);
 /// Cartesian brake gain, N·s/m (capped at `½·M_HANDLE_MIN/T`).
 pub const B_BRAKE: Fx = Fx::from_int(40);
 /// Smallest effective mass of the handle along any direction, kg (the
@@ -914,10 +917,7 @@ pub fn cartesian_control(
             // energy already in, so what it holds is now), else the anchor
             // slips so that the force stays continuous (g₀/g of the stretch).
             let v = spring_energy(&g, f_lim, d_eff, e_eff);
-            let cost = v.mul_sat(env.sub_sat(env_prev));
-            if ctrl.po_energy.sub_sat(cost) >= v.mul_sat(env) {
-                ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
-            } else {
+            if ctrl.po_energy < v.mul_sat(env) {
                 let k = ratio_le1(env_prev, env);
                 d_eff = d_eff.scale(k);
                 e_eff = e_eff.scale(k);
@@ -1013,11 +1013,16 @@ pub fn cartesian_control(
             *t = gr.neg_sat().clamp_abs(*lim);
         }
     }
-    // The coupling's scale from the speeds: 1 below the brakes' onsets,
-    // falling linearly to 0 where the coupling may no longer drive a joint
-    // (or the handle) along its motion. Continuous in the speeds, so it
-    // changes the force no faster than the arm's speeds change.
+    // The coupling's scale from the joint speeds: 1 below the joint
+    // brakes' onsets, falling linearly to 0 where the coupling may no
+    // longer drive a joint along its motion (motor protection,
+    // `BRAKE_START`).
+    // Continuous in the speeds; it switches on where a coupling torque turns
+    // to drive such a fast joint. The handle's own bound is continuous in
+    // speed and direction too (`push_s`, below).
     let mut speed_s = Fx::ONE;
+    // The share of the force's push along a fast motion kept (1: all).
+    let mut push_s = Fx::ONE;
     let mut over = [false; 6];
     // A bounded index range, not `enumerate()` (its counter is an
     // overflow-checked addition: a panic path in the kernel).
@@ -1075,11 +1080,40 @@ pub fn cartesian_control(
         }
     }
     if handle_wrench != Wrench::ZERO {
-        if v_lin > V_BRAKE_ONSET && handle_wrench.force.dot(v_h).0 > 0 {
-            speed_s = speed_s.min(speed_scale(v_lin, V_BRAKE_ONSET, V_COUPLING_STOP));
-        }
         if speed_s < Fx::ONE {
             handle_wrench = handle_wrench.scale(speed_s);
+        }
+        // Above the onset, a coupling that pushes along the handle's motion
+        // is scaled by `1 − (1 − s(|v|))·min(1, cos θ / PUSH_COS_FULL)`, θ
+        // the angle between force and motion: s(|v|) (0 from
+        // `V_COUPLING_STOP`) once the push is within 75.5° of the motion,
+        // rising to 1 as it turns across. A scale of the whole wrench, so
+        // the motors give at most what the spring gives at every instant
+        // (a projection that keeps the cross-motion force does not: within
+        // a long period the motion turns and the kept part does work), and
+        // continuous in speed and direction (a switch at θ = 90° stepped
+        // the force by up to 4.5 N in one 100 µs cycle).
+        let push = if v_lin > V_BRAKE_ONSET {
+            handle_wrench.force.dot(v_h)
+        } else {
+            Fx::ZERO
+        };
+        if push.0 > 0 {
+            let s_v = speed_scale(v_lin, V_BRAKE_ONSET, V_COUPLING_STOP);
+            // cos θ / PUSH_COS_FULL, ≤ 1 (|f|·|v| ≥ push > 0).
+            let full = handle_wrench
+                .force
+                .norm()
+                .mul_sat(v_lin)
+                .mul_sat(PUSH_COS_FULL);
+            let c = if push >= full {
+                Fx::ONE
+            } else {
+                push.div_sat(full)
+            };
+            let s_push = Fx::ONE.sub_sat(Fx::ONE.sub_sat(s_v).mul_sat(c));
+            handle_wrench = handle_wrench.scale(s_push);
+            push_s = s_push;
         }
     }
     // One product in the common case: the whole wrench fits.
@@ -1245,13 +1279,7 @@ pub fn cartesian_control(
                 .force_limit
                 .add_sat(MAX_FORCE.mul_sat(ctrl.ramp_step))
                 .min(MAX_FORCE);
-            let dn = d_eff.norm();
-            let v_old = lin_spring_energy(g.k_lin, ctrl.force_limit, dn);
-            let v_new = lin_spring_energy(g.k_lin, raised, dn);
-            let cost = v_new.sub_sat(v_old).max(Fx::ZERO);
-            let v_all = spring_energy(&g, raised, d_eff, e_eff);
-            if ctrl.po_energy.sub_sat(cost) >= v_all {
-                ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
+            if ctrl.po_energy >= spring_energy(&g, raised, d_eff, e_eff) {
                 ctrl.force_limit = raised;
             }
         }
@@ -1281,11 +1309,8 @@ pub fn cartesian_control(
             };
             let slip = ctrl.slip.sub(ctrl.slip.clamp_norm(dl).0);
             let slip_rot = ctrl.slip_rot.sub(ctrl.slip_rot.clamp_norm(dr).0);
-            let v_old = spring_energy(&g, ctrl.force_limit, d_eff, e_eff);
             let v_new = spring_energy(&g, ctrl.force_limit, d.sub(slip), e.sub(slip_rot));
-            let cost = v_new.sub_sat(v_old).max(Fx::ZERO);
-            if ctrl.po_energy.sub_sat(cost) >= v_new {
-                ctrl.po_energy = ctrl.po_energy.sub_sat(cost);
+            if ctrl.po_energy >= v_new {
                 ctrl.slip = slip;
                 ctrl.slip_rot = slip_rot;
             }
@@ -1313,7 +1338,7 @@ pub fn cartesian_control(
         envelope: ctrl.envelope,
         torque_scale: s,
         force_scale: s_f,
-        speed_scale: speed_s,
+        speed_scale: speed_s.min(push_s),
         spring_wrench,
     }
 }
