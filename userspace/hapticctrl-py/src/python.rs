@@ -317,7 +317,7 @@ impl Session {
     /// none of them raises `NoKeyError` unless `insecure=True` (protocol v1,
     /// which a bridge refuses unless it runs `--insecure`).
     #[new]
-    #[pyo3(signature = (address, *, key=None, insecure=false, reply_timeout=0.25, attempts=4))]
+    #[pyo3(signature = (address, *, key=None, insecure=false, reply_timeout=0.25, attempts=4, link_passivity=false))]
     fn new(
         py: Python<'_>,
         address: &str,
@@ -325,6 +325,7 @@ impl Session {
         insecure: bool,
         reply_timeout: f64,
         attempts: u32,
+        link_passivity: bool,
     ) -> PyResult<Session> {
         if !(reply_timeout > 0.0 && reply_timeout <= 60.0) {
             return Err(invalid(
@@ -338,6 +339,7 @@ impl Session {
         let in_address = split_options(address.trim())
             .map_err(|e| to_py(py, e))?
             .1
+            .key
             .is_some();
         let in_env = std::env::var_os(KEY_ENV).is_some_and(|v| !v.is_empty());
         let psk = match &key {
@@ -366,7 +368,7 @@ impl Session {
             reply_timeout: Duration::from_secs_f64(reply_timeout),
             attempts,
             key: psk,
-            ..Options::default()
+            link_passivity,
         };
         let addr = address.to_string();
         let vc = py

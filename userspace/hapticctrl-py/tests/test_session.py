@@ -46,6 +46,28 @@ def test_the_key_in_the_address_and_in_the_environment(fake, key_file, monkeypat
     assert num(fake.stats(), "handshakes") == 2
 
 
+def test_link_passivity_by_keyword_and_by_address(fake, key_file):
+    # Off by default; on with link_passivity=True or "?link=passive": the
+    # position stream then carries this end's energy (CTRL_LINK_ENERGY).
+    def frames(**kw):
+        before = num(fake.stats(), "link_energy_frames")
+        addr = kw.pop("addr", fake.address)
+        with hc.Session(addr, key=key_file, **kw) as s:
+            s.set_time_step(0.001)
+            s.set_command_type("virtmech")
+            s.attach_vo(0.5, [1e-3, 1e-3, 1e-3])
+            for _ in range(20):
+                s.set_speed([0.0] * 6)
+                s.set_position([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+        return num(fake.stats(), "link_energy_frames") - before
+
+    assert frames() == 0
+    assert frames(link_passivity=True) > 0
+    assert frames(addr=f"{fake.address}?link=passive") > 0
+    with pytest.raises(hc.AddressError):
+        hc.Session(f"{fake.address}?link=active", key=key_file)
+
+
 def test_configuration_reaches_the_controller(fake, key_file):
     with hc.Session(fake.address, key=key_file) as s:
         s.set_time_step(0.001)

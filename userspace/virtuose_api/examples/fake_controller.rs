@@ -115,6 +115,7 @@ fn main() {
         s.command_type.map(|t| t.to_string()).unwrap_or("-".into())
     );
     println!("max_vo_offset_m: {:.6}", s.max_vo_offset);
+    println!("link_energy_frames: {}", s.link_energy_frames);
     println!(
         "last_vo_pose: {}",
         s.last_vo_pose.map(|v| format!("{v:.6}")).join(",")

@@ -19,8 +19,8 @@ use std::time::{Duration, Instant};
 
 use hap_core::fixed::{Pose, Twist, Vec3, Wrench};
 use hap_core::protocol::{
-    decode, encode, Answer, AnswerTwist, Frame, FrameHeader, CTRL_ACK_REQUEST, ERROR_NO_SESSION,
-    MAX_FRAME_LEN,
+    decode, encode, Answer, AnswerTwist, Frame, FrameHeader, CTRL_ACK_REQUEST, CTRL_LINK_ENERGY,
+    ERROR_NO_SESSION, MAX_FRAME_LEN,
 };
 use hap_core::vp::status;
 
@@ -107,6 +107,9 @@ pub struct FakePeerStats {
     /// Largest distance between a streamed virtual-object position and the
     /// handle position of the last answer sent before it, m.
     pub max_vo_offset: f64,
+    /// VprStream frames that carried `CTRL_LINK_ENERGY` (a client keeping
+    /// the link passive).
+    pub link_energy_frames: u64,
     pub client: Option<SocketAddr>,
 }
 
@@ -403,6 +406,9 @@ fn run(
             Frame::VprStream { pose, twist } => {
                 last_vpr = Some((pose, twist, h.seq));
                 if let Ok(mut s) = stats.lock() {
+                    if h.control & CTRL_LINK_ENERGY != 0 {
+                        s.link_energy_frames += 1;
+                    }
                     s.last_vo_position = pose.position.to_f64();
                     let o = pose.orientation.to_f64();
                     let p = s.last_vo_position;

@@ -31,7 +31,8 @@
 //! session opens with a challenge–response handshake and every frame
 //! carries an HMAC tag (Documentation/protocol.md §7). The key comes from
 //! [`Options::key`], else from the address (`"host#port?key=/path/to/key"`,
-//! which also works through the C `virtOpen`), else from the file named by
+//! which also works through the C `virtOpen`; `&link=passive` there turns on
+//! [`Options::link_passivity`]), else from the file named by
 //! the environment variable [`KEY_ENV`]. Without a key the library speaks
 //! unauthenticated v1, which a bridge refuses unless it runs `--insecure`.
 
@@ -174,7 +175,9 @@ pub struct Options {
     /// coupling wrench less what the controller's energy grants do not
     /// cover, `set_position` records the step and sends this end's grants
     /// (`CTRL_LINK_ENERGY`); the controller then does the same at the
-    /// handle and keeps the coupling on over a slow link. Off by default.
+    /// handle and keeps the coupling on over a slow link. Off by default;
+    /// also on with `link=passive` in the address (`"host#port?link=passive"`,
+    /// [`split_options`]), which is how C's `virtOpen` turns it on.
     pub link_passivity: bool,
 }
 
@@ -426,24 +429,36 @@ impl AnswerWaiter {
     }
 }
 
-/// Split `"address?key=/path"` into the address and the key file (the only
-/// option); an address without `?` has none.
-pub fn split_options(s: &str) -> Result<(&str, Option<&str>)> {
+/// The options an address string may carry after `?`, `&`-separated:
+/// `key=/path/to/key` (the pre-shared key's file) and `link=passive`
+/// ([`Options::link_passivity`]), so that a C application's `virtOpen`
+/// reaches both.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct AddressOptions<'a> {
+    pub key: Option<&'a str>,
+    pub link_passivity: bool,
+}
+
+/// Split `"address?key=/path&link=passive"` into the address and its
+/// options; an address without `?` has none. An unknown option, an empty
+/// key path or a `link=` other than `passive` is refused.
+pub fn split_options(s: &str) -> Result<(&str, AddressOptions<'_>)> {
+    let mut o = AddressOptions::default();
     let Some((addr, opts)) = s.split_once('?') else {
-        return Ok((s, None));
+        return Ok((s, o));
     };
-    let mut key = None;
     for kv in opts.split('&').filter(|kv| !kv.is_empty()) {
         match kv.split_once('=') {
-            Some(("key", path)) if !path.is_empty() => key = Some(path),
+            Some(("key", path)) if !path.is_empty() => o.key = Some(path),
+            Some(("link", "passive")) => o.link_passivity = true,
             _ => {
                 return Err(VirtError::InvalidAddress(format!(
-                    "{s}: unknown option '{kv}' (expected key=/path/to/key)"
+                    "{s}: unknown option '{kv}' (expected key=/path/to/key or link=passive)"
                 )))
             }
         }
     }
-    Ok((addr, key))
+    Ok((addr, o))
 }
 
 fn load_key(path: &str) -> Result<Psk> {
@@ -507,9 +522,11 @@ impl VirtContext {
     }
 
     /// Open with explicit timeouts.
-    pub fn open_with(addr: &str, opts: Options) -> Result<VirtContext> {
+    pub fn open_with(addr: &str, mut opts: Options) -> Result<VirtContext> {
         let peer = parse_address(addr)?;
-        let key = match (opts.key.clone(), split_options(addr.trim())?.1) {
+        let from_addr = split_options(addr.trim())?.1;
+        opts.link_passivity |= from_addr.link_passivity;
+        let key = match (opts.key.clone(), from_addr.key) {
             (Some(k), _) => Some(k),
             (None, Some(path)) => Some(load_key(path)?),
             (None, None) => match std::env::var(KEY_ENV) {
@@ -1341,13 +1358,33 @@ mod tests {
         assert!(parse_address("#5000").is_err());
         assert!(parse_address("127.0.0.1#0").is_err());
         assert_eq!(parse_address("127.0.0.1#5001?key=/k").unwrap().port(), 5001);
+        let key = |k| AddressOptions {
+            key: Some(k),
+            link_passivity: false,
+        };
         assert_eq!(
             split_options("h#1?key=/etc/hap.key").unwrap(),
-            ("h#1", Some("/etc/hap.key"))
+            ("h#1", key("/etc/hap.key"))
         );
-        assert_eq!(split_options("h#1").unwrap(), ("h#1", None));
+        assert_eq!(
+            split_options("h#1").unwrap(),
+            ("h#1", AddressOptions::default())
+        );
+        assert_eq!(
+            split_options("h#1?key=/k&link=passive").unwrap(),
+            (
+                "h#1",
+                AddressOptions {
+                    key: Some("/k"),
+                    link_passivity: true
+                }
+            )
+        );
+        assert!(split_options("h#1?link=passive").unwrap().1.link_passivity);
         assert!(split_options("h#1?kex=/x").is_err());
         assert!(split_options("h#1?key=").is_err());
+        assert!(split_options("h#1?link=active").is_err());
+        assert!(split_options("h#1?link").is_err());
     }
 
     #[test]

@@ -229,15 +229,18 @@ fn link_passivity_pushes_the_object_only_with_granted_energy() {
     })
     .unwrap();
     let dt = 0.001f32;
-    for link_passivity in [false, true] {
+    // Off; on through `Options`; on through the address (as from C's
+    // `virtOpen("host#port?link=passive")`).
+    for (link_passivity, suffix) in [(false, ""), (true, ""), (false, "?link=passive")] {
         let mut vc = VirtContext::open_with(
-            &peer.address(),
+            &format!("{}{suffix}", peer.address()),
             Options {
                 link_passivity,
                 ..quick()
             },
         )
         .unwrap();
+        let link_passivity = link_passivity || !suffix.is_empty();
         vc.set_time_step(dt).unwrap();
         vc.set_command_type(CommandType::VirtMech).unwrap();
         vc.attach_vo(0.2, [0.001; 3]).unwrap();

@@ -124,8 +124,9 @@ fn print_stats(f: &AuthFake) {
         p.client.is_some() as u8
     );
     out += &format!(
-        "command_type: {}\n",
-        p.command_type.map_or("-".into(), |t| t.to_string())
+        "command_type: {}\nlink_energy_frames: {}\n",
+        p.command_type.map_or("-".into(), |t| t.to_string()),
+        p.link_energy_frames
     );
     let v = p.last_vo_pose;
     out += &format!(
