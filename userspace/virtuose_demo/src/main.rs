@@ -528,9 +528,10 @@ fn run(args: Args) -> Result<(), String> {
         // The force is the spring's pull toward the VPr it was computed
         // for. If that VPr left more than 100 ms ago (the round trip of the
         // last echoed one plus the time since the last answer: the
-        // controller's own link-fade horizon), the loop is delayed beyond
-        // what the drag keeps passive (2·drag/K ≈ 0.1 s): it is not applied
-        // and the sphere is left to its drag (`stale_cycles`). With
+        // controller's own link-fade horizon), it is not applied and the
+        // sphere is left to its drag (`stale_cycles`). (The drag alone keeps
+        // a delayed spring passive only up to 2·drag/K ≈ 18 ms at 1 ms's
+        // K_t: `World::drag_a`.) With
         // `--link-passivity` the library's link limiter keeps the client's
         // end passive at any delay (the force it returns is already what the
         // link's energy pays for): applied whatever its age.
@@ -563,7 +564,7 @@ fn run(args: Args) -> Result<(), String> {
         // the newest target, so a client streaming faster than it consumes
         // (an emulated guest running slower than real time) only fills the
         // queues in front of it: its targets then reach the arm seconds
-        // late, and a spring delayed by more than 2·drag/K (~0.1 s here) is
+        // late, and a spring delayed by more than 2·drag/K (~18 ms here) is
         // no longer passive: the sphere runs away. So stay at most
         // `window` frames ahead of the answers; the newest pose goes out
         // with the next answer.

@@ -39,9 +39,13 @@ pub struct World {
     /// Viscous drag on the coupled sphere A, N·s/m. The coupling reaches the
     /// client late (network + answer period); a spring K delayed by T stays
     /// passive only with damping b > K·T/2: with the controller's K_t at
-    /// 1 ms (203 N/m) this drag tolerates T < 2b/K ≈ 98 ms (the client
-    /// paces its stream so that queues cannot build such a delay). It also
-    /// sets the sphere's lag behind a handle moving at v: b·v/K (0.05 s × v).
+    /// 1 ms (1138 N/m) this drag tolerates T < 2b/K ≈ 18 ms, less than the
+    /// 100 ms horizon after which the demo stops applying an old force (the
+    /// controller's own link-fade horizon): over a slower link a plain
+    /// client's sphere can gain energy, which `--link-passivity` prevents
+    /// (the library then returns only the force the link's energy pays
+    /// for). It also sets the sphere's lag behind a handle moving at v:
+    /// b·v/K (8.8 ms × v).
     pub drag_a: f64,
     /// Last contact force applied on A by B (N), for display.
     pub contact_on_a: V3,
