@@ -33,7 +33,8 @@ use kernel::{
     sync::{Mutex, MutexGuard},
 };
 
-/// SERVO's read attempts of the VPr latch (a publication is 18 stores;
+/// SERVO's read attempts of the VPr latch (a publication is
+/// `VPR_LATCH_WORDS` = 20 word stores;
 /// on one CPU a PROTO_IN preempted inside one does not finish meanwhile).
 const VPR_READ_ATTEMPTS: usize = 4;
 
