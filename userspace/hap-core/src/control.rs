@@ -913,8 +913,9 @@ pub fn cartesian_control(
         }
         if ctrl.coupled && env > env_prev {
             // A rising envelope stores ½(g − g₀)·K|d|² more in the spring:
-            // paid by the observer when it holds it (with this period's
-            // energy already in, so what it holds is now), else the anchor
+            // allowed when the observer holds the spring's energy after it
+            // (with this period's energy already in, so what it holds is
+            // now; E already counts V, so nothing is taken from it), else the anchor
             // slips so that the force stays continuous (g₀/g of the stretch).
             let v = spring_energy(&g, f_lim, d_eff, e_eff);
             if ctrl.po_energy < v.mul_sat(env) {
@@ -1199,7 +1200,7 @@ pub fn cartesian_control(
             *t = t.add_sat(bt.mul_sat(sb));
         }
     }
-    let s = s_f.min(s_t).mul_sat(speed_s);
+    let s = s_f.min(s_t).mul_sat(speed_s.min(push_s));
     let mut joint_torques = JOINTS_ZERO;
     for (((o, tf), tc), lim) in joint_torques
         .iter_mut()
