@@ -6,7 +6,8 @@
 # cycles (the suite's; the first argument sets it: the full campaign is
 #   scripts/qemu-run.sh --stock --icount --period-us 250 --timeout 3000 \
 #     tests/qemu/08-hostile-userspace.sh 100000
-# ; the load checks' fixed floors assume >= 3*10^4) where userspace does its worst with every device: /dev/hap_stats,
+# ; the load checks' fixed floors assume >= 3*10^4) where userspace does
+# its worst with every device: /dev/hap_stats,
 # /dev/hap_hist and /dev/hap_power read in tight loops, a 64 KiB effort
 # sequence written to /dev/hap_effort every 10 ms, and the session's own
 # reader (the rtf_out reader) stopped with SIGSTOP for 1 s mid-session. A
