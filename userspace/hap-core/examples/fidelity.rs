@@ -280,6 +280,25 @@ fn stiffness_table(svg: &mut Vec<(u32, Vec<(f64, f64)>)>) {
     println!();
 }
 
+/// The joints at (or beyond) a position limit, as `q3 = -0.30` (joints
+/// numbered from 1), or "none".
+fn at_stops(q: &Joints) -> String {
+    let mut out = Vec::new();
+    for i in 0..6 {
+        let (lo, hi) = (f(arm::Q_MIN[i]), f(arm::Q_MAX[i]));
+        let x = f(q[i]);
+        // Within 0.01 rad of the limit: the stop springs give a little.
+        if x <= lo + 0.01 || x >= hi - 0.01 {
+            out.push(format!("q{} = {x:.2}", i + 1));
+        }
+    }
+    if out.is_empty() {
+        "none".into()
+    } else {
+        out.join(", ")
+    }
+}
+
 /// After a push beyond the capacity, how long until the wall is back
 /// (penetration within 1 mm of where a 2 N touch holds it). The push is
 /// 25 % above the motors' capacity for 0.3 s; a second table rams the arm
@@ -291,8 +310,8 @@ fn recovery() {
     ] {
         println!("## The wall after {title}, then a 2 N touch");
         println!();
-        println!("| period | pose | axis | capacity (N) | push (N) | penetration at the push (mm) | 2 N touch before (mm) | back within 1 mm after (ms) |");
-        println!("|---|---|---|---|---|---|---|---|");
+        println!("| period | pose | axis | capacity (N) | push (N) | penetration at the push (mm) | 2 N touch before (mm) | back within 1 mm after (ms) | joints at a stop 2 s after |");
+        println!("|---|---|---|---|---|---|---|---|---|");
         let mut worst: f64 = 0.0;
         for &us in &PERIODS_US {
             for (pname, q) in poses() {
@@ -320,10 +339,11 @@ fn recovery() {
                         worst = worst.max(back.unwrap_or(f64::INFINITY));
                     }
                     println!(
-                        "| {us} µs | {pname} | {aname} | {cap:.1} | {push:.1} | {:.1} | {:.1} | {} |",
+                        "| {us} µs | {pname} | {aname} | {cap:.1} | {push:.1} | {:.1} | {:.1} | {} | {} |",
                         deep * 1000.0,
                         before * 1000.0,
-                        back.map(|ms| format!("{ms:.0}")).unwrap_or_else(|| "not within 2 s".into())
+                        back.map(|ms| format!("{ms:.0}")).unwrap_or_else(|| "not within 2 s".into()),
+                        at_stops(&rig.c.servo.simulator().q)
                     );
                 }
             }

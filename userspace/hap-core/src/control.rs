@@ -88,6 +88,39 @@ pub const BRAKE_START: Joints = [
     Fx::from_int(20),
     Fx::from_int(20),
 ];
+/// Elbow angle below which the elbow's soft stop acts, rad: it keeps the
+/// arm off its stretched singularity (elbow straight, q3 = 0). Past it,
+/// the elbow can bend the other way down to its end stop (`arm::Q_MIN`),
+/// and there a spring pulling the handle toward the base bends the elbow
+/// further into that stop instead of back: the wall is lost.
+pub const ELBOW_SOFT_STOP: Fx = Fx::from_ratio(15, 100);
+/// Share of the elbow's viscous damping `b_3` the soft stop's sampled
+/// spring may use: `K_e = share·b_3 / (T_e/2)` (`effective_half_period`),
+/// so `(T_e/2)·K_e ≤ share·b_3` (Colgate's condition for a one-sided
+/// sampled spring at the joint), capped at `ELBOW_STOP_K_MAX`. The
+/// coupling's stiffest gains use `BOUND_MARGIN_MAX` (98 %) of the damping:
+/// together 99.5 % (`Documentation/control.md`).
+pub const ELBOW_STOP_SHARE: Fx = Fx::from_ratio(15, 1000);
+/// Elbow speed (bending back, rad/s) at which the soft stop's push has
+/// faded to nothing.
+pub const ELBOW_STOP_RELEASE: Fx = Fx::from_int(2);
+/// Largest torque of the elbow's soft stop, N·m. With it, the fidelity
+/// bench's push past full reach (WORK_Q outward, 73.5 N) finds the wall
+/// again after 191–210 ms; uncapped (up to 11 N·m) the stop threw the
+/// handle to 3.6 m/s when a 25 N push folded the arm over its base.
+pub const ELBOW_STOP_TORQUE_MAX: Fx = Fx::from_int(5);
+/// Largest elbow soft-stop stiffness, N·m/rad.
+pub const ELBOW_STOP_K_MAX: Fx = Fx::from_int(100);
+
+/// The elbow soft stop's stiffness for `period`, N·m/rad.
+pub fn elbow_stop_gain(period: Fx) -> Fx {
+    let b3 = arm::DAMPING[2];
+    ELBOW_STOP_SHARE
+        .mul_sat(b3)
+        .div_sat(effective_half_period(period))
+        .min(ELBOW_STOP_K_MAX)
+}
+
 /// Brake gain as a fraction of `I_rotor,i / T` (`B_i·T/I_i ≤ ½`: the sampled
 /// brake never reverses a joint within one period).
 pub const BRAKE_GAIN_FRACTION: Fx = Fx::HALF;
@@ -319,6 +352,14 @@ pub struct Controller {
     impulse_torque: Fx,
     /// Cartesian brake gain for the period, N·s/m.
     brake_lin: Fx,
+    /// `elbow_stop_gain` for the period, N·m/rad.
+    elbow_k: Fx,
+    /// Whether the elbow soft stop pushed in the last cycle (the observer
+    /// then leaves its share of the elbow's damping to it).
+    elbow_pushed: bool,
+    /// The elbow soft stop's scale in [0, 1]: rises only while the elbow is
+    /// outside the stop's range.
+    elbow_gate: Fx,
     /// `V_ANCHOR_MAX`·T, m.
     anchor_step: Fx,
     /// Indexing offset: indexed handle = (offset_pos + p, offset_rot ⊗ q).
@@ -408,6 +449,9 @@ impl Controller {
             impulse_force: Fx::ZERO,
             impulse_torque: Fx::ZERO,
             brake_lin: Fx::ZERO,
+            elbow_k: Fx::ZERO,
+            elbow_pushed: false,
+            elbow_gate: Fx::ZERO,
             anchor_step: Fx::ZERO,
             offset_pos: Vec3::ZERO,
             offset_rot: Quat::IDENTITY,
@@ -440,6 +484,7 @@ impl Controller {
         self.impulse_force = FORCE_IMPULSE_N_PER_MS.mul_sat(ms);
         self.impulse_torque = TORQUE_IMPULSE_NM_PER_MS.mul_sat(ms);
         self.brake_lin = cartesian_brake_gain(period);
+        self.elbow_k = elbow_stop_gain(period);
         self.anchor_step = V_ANCHOR_MAX.mul_sat(period);
         self.takeback_every = if period >= TAKEBACK_EVERY_CYCLE_FROM {
             1
@@ -460,6 +505,17 @@ impl Controller {
     /// Cycles on which the link's passivity controller took force off.
     pub const fn link_limited_cycles(&self) -> u64 {
         self.link_limited
+    }
+
+    /// Whether the elbow soft stop pushed in the last cycle
+    /// ([`ELBOW_SOFT_STOP`]).
+    pub fn elbow_pushed(&self) -> bool {
+        self.elbow_pushed
+    }
+
+    /// The elbow soft stop's stiffness, N·m/rad ([`elbow_stop_gain`]).
+    pub fn elbow_gain(&self) -> Fx {
+        self.elbow_k
     }
 
     pub fn coupled(&self) -> bool {
@@ -908,6 +964,13 @@ pub fn cartesian_control(
                     let dq = q.sub_sat(*q0);
                     de = de.add_sat(b.mul_sat(dq.mul_sat(dq)).div_sat(ctrl.period));
                 }
+                if ctrl.elbow_pushed {
+                    // The elbow soft stop's sampled spring may gain at most
+                    // ½·K_e·Δq₃² over the period: that much of the elbow's
+                    // dissipation is its own, not the coupling's.
+                    let dq = ps.q[2].sub_sat(ctrl.prev_q[2]);
+                    de = de.sub_sat(ctrl.elbow_k.mul_sat(dq.mul_sat(dq)).half());
+                }
             }
             ctrl.po_energy = ctrl.po_energy.add_sat(de);
         }
@@ -1014,6 +1077,38 @@ pub fn cartesian_control(
             *t = gr.neg_sat().clamp_abs(*lim);
         }
     }
+    // The elbow's soft stop: a one-sided joint spring below
+    // `ELBOW_SOFT_STOP` that keeps the arm off its stretched singularity,
+    // capped at `ELBOW_STOP_TORQUE_MAX`, scaled by its gate. The gate
+    // follows the coupling's envelope down at once, and up only while the
+    // elbow is outside the stop's range, where the spring stores nothing:
+    // its energy never grows but by the arm's work on it (a spring whose
+    // scale only falls gives back at most what it holds). A coupling that
+    // starts with the elbow past the onset leaves the stop off until the
+    // elbow is out.
+    let env_now = if active { ctrl.envelope } else { Fx::ZERO };
+    if env_now < ctrl.elbow_gate || ps.q[2] >= ELBOW_SOFT_STOP {
+        ctrl.elbow_gate = env_now;
+    }
+    let elbow_pushed = ctrl.elbow_gate.0 > 0 && ps.q[2] < ELBOW_SOFT_STOP;
+    if elbow_pushed {
+        let mut push = ctrl
+            .elbow_k
+            .mul_sat(ELBOW_SOFT_STOP.sub_sat(ps.q[2]))
+            .min(ELBOW_STOP_TORQUE_MAX)
+            .mul_sat(ctrl.elbow_gate);
+        // In full while the elbow is still or straightens, fading to
+        // nothing as it bends back at `ELBOW_STOP_RELEASE`: the fade is
+        // the spring's force times `q̇₃/ω_r` taken off, a damper of
+        // nonnegative gain (it only takes energy), and the stop never
+        // drives the elbow beyond that speed.
+        let qd = ps.qd[2];
+        if qd.0 > 0 {
+            push = push.mul_sat(speed_scale(qd, Fx::ZERO, ELBOW_STOP_RELEASE));
+        }
+        fixed[2] = fixed[2].add_sat(push).clamp_abs(arm::TAU_MAX[2]);
+    }
+    ctrl.elbow_pushed = elbow_pushed;
     // The coupling's scale from the joint speeds: 1 below the joint
     // brakes' onsets, falling linearly to 0 where the coupling may no
     // longer drive a joint along its motion (motor protection,

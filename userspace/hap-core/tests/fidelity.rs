@@ -11,6 +11,7 @@
 
 use hap_core::arm;
 use hap_core::config::{CommandType, ServoConfig};
+use hap_core::control;
 use hap_core::cycle::ServoCycle;
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Joints, Pose, Vec3, Wrench, JOINTS_ZERO};
@@ -189,6 +190,46 @@ fn the_wall_is_back_after_a_push_beyond_the_capacity() {
     );
     assert!(ms <= 500.0, "{ms} ms");
     assert_eq!(rig.c.servo.controller().slip().0, Vec3::ZERO);
+}
+
+#[test]
+fn a_push_past_full_reach_leaves_the_elbow_bent_the_right_way_and_the_wall_comes_back() {
+    // WORK_Q outward (x): 73.5 N for 0.3 s stretches the arm toward full
+    // reach. Without the elbow's soft stop the elbow went through straight
+    // to its stop on the other side (q3 = -0.30), where the spring's pull
+    // toward the base bends it further into the stop: the handle stayed
+    // 10.5 mm in (against 1.7 mm for a 2 N touch) for good.
+    const OUT: [f64; 3] = [1.0, 0.0, 0.0];
+    let us = 1000;
+    let touch = Rig::new(us, &arm::WORK_Q).penetration(OUT, 2.0);
+    let mut rig = Rig::new(us, &arm::WORK_Q);
+    let mut least_q3 = f64::INFINITY;
+    for _ in 0..rig.cycles(0.3) {
+        rig.step(OUT.map(|x| x * 73.5), OUT);
+        least_q3 = least_q3.min(rig.c.servo.simulator().q[2].to_f64());
+    }
+    let mut back = None;
+    for n in 0..rig.cycles(2.0) {
+        let pen = rig.step(OUT.map(|x| x * 2.0), OUT).0;
+        least_q3 = least_q3.min(rig.c.servo.simulator().q[2].to_f64());
+        if back.is_none() && (pen - touch).abs() < 1e-3 {
+            back = Some(n);
+        }
+    }
+    let q3 = rig.c.servo.simulator().q[2].to_f64();
+    let pen = rig.step(OUT.map(|x| x * 2.0), OUT).0;
+    println!(
+        "least elbow angle {least_q3:.3} rad, at the end {q3:.3} rad, penetration {:.1} mm (touch {:.1} mm)",
+        pen * 1000.0,
+        touch * 1000.0
+    );
+    let ms = back.expect("the wall came back within 2 s") as f64 * rig.period_s * 1000.0;
+    assert!(ms <= 500.0, "{ms} ms");
+    assert!(
+        q3 > control::ELBOW_SOFT_STOP.to_f64() * 0.5,
+        "the elbow ends bent the right way: {q3}"
+    );
+    assert!((pen - touch).abs() < 1e-3, "{pen} against {touch}");
 }
 
 #[test]

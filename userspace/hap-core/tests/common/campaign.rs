@@ -32,6 +32,8 @@ pub struct Figures {
     pub cycles: u64,
     pub coupled_cycles: u64,
     pub passivity_cycles: u64,
+    /// Cycles in which the elbow's soft stop pushed.
+    pub elbow_stop_cycles: u64,
     pub link_loss_events: u64,
     pub link_loss_unfaded: u64,
     pub resumes: u64,
@@ -66,6 +68,7 @@ impl Figures {
         self.cycles += o.cycles;
         self.coupled_cycles += o.coupled_cycles;
         self.passivity_cycles += o.passivity_cycles;
+        self.elbow_stop_cycles += o.elbow_stop_cycles;
         self.link_loss_events += o.link_loss_events;
         self.link_loss_unfaded += o.link_loss_unfaded;
         self.resumes += o.resumes;
@@ -88,12 +91,13 @@ impl Figures {
 
     pub fn print(&self, label: &str) {
         println!(
-            "{label}: {} runs, {} cycles ({} coupled, PASSIVITY active in {} = {:.4} %)",
+            "{label}: {} runs, {} cycles ({} coupled, PASSIVITY active in {} = {:.4} %, the elbow's soft stop pushing in {})",
             self.runs,
             self.cycles,
             self.coupled_cycles,
             self.passivity_cycles,
-            100.0 * self.passivity_cycles as f64 / (self.coupled_cycles.max(1) as f64)
+            100.0 * self.passivity_cycles as f64 / (self.coupled_cycles.max(1) as f64),
+            self.elbow_stop_cycles
         );
         println!(
             "  link loss: {} events, {} with motor force above the fade; resumes: {}, worst force above the ramp {:.2e} N; worst envelope step {:.5} (ramp: T/50 ms per cycle)",
@@ -263,6 +267,7 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
     let mut prev_hw = Wrench::ZERO;
     let mut prev_fixed_tau = [0.0f64; 6];
     let mut prev_applied = [0.0f64; 6];
+    let mut prev_elbow_pushed = false;
     let mut ledger: Option<f64> = None;
     let mut in_loss = false;
     let mut loss_unfaded = false;
@@ -668,6 +673,12 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
                         work += tc * dq;
                         credit += f(arm::DAMPING[i]) * dq * dq / t;
                     }
+                    if prev_elbow_pushed {
+                        // The elbow soft stop's share of the elbow's
+                        // dissipation (its sampled spring's largest gain).
+                        let dq = f(qn[2]) - f(pq[2]);
+                        credit -= 0.5 * f(c.servo.controller().elbow_gain()) * dq * dq;
+                    }
                     // The client's step as the spring sees it: the change
                     // of its error (bounded to D_CLAMP per component; the
                     // rotation's error vector) at the handle pose now.
@@ -711,6 +722,10 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         }
         prev_q = Some(log.q);
         prev_hw = out.handle_wrench;
+        prev_elbow_pushed = c.servo.controller().elbow_pushed();
+        if prev_elbow_pushed {
+            figs.elbow_stop_cycles += 1;
+        }
         for i in 0..6 {
             prev_applied[i] = f(applied[i]);
             prev_fixed_tau[i] = if enabled {
