@@ -2,7 +2,8 @@
 //! (`examples/fidelity.rs`, `scripts/bench-fidelity.sh` prints them all):
 //! felt stiffness of a rigid wall per period, the 10 N / 5 N penetration
 //! ratio where the motors can give 10 N, the wall back where it was after a
-//! push beyond the motors' capacity (the spring does not slip), and the
+//! push beyond the motors' capacity (the spring does not slip) and after one
+//! past full reach (the elbow's soft stop keeps it bent the right way), the
 //! largest force step in one 1 ms cycle for client-driven changes and after
 //! a power-on next to the object (and in one 100 µs cycle, where the power-on
 //! throws the handle past the speed scale's onset), and a fast push (Cartesian brake engaged)
