@@ -106,7 +106,7 @@ pub const ELBOW_STOP_SHARE: Fx = Fx::from_ratio(15, 1000);
 pub const ELBOW_STOP_RELEASE: Fx = Fx::from_int(2);
 /// Largest torque of the elbow's soft stop, N·m. With it, the fidelity
 /// bench's push past full reach (WORK_Q outward, 73.5 N) finds the wall
-/// again after 191–210 ms; uncapped (up to 11 N·m) the stop threw the
+/// again after 191–215 ms; uncapped (up to 11 N·m) the stop threw the
 /// handle to 3.6 m/s when a 25 N push folded the arm over its base.
 pub const ELBOW_STOP_TORQUE_MAX: Fx = Fx::from_int(5);
 /// Largest elbow soft-stop stiffness, N·m/rad.
@@ -360,6 +360,8 @@ pub struct Controller {
     /// The elbow soft stop's scale in [0, 1]: rises only while the elbow is
     /// outside the stop's range.
     elbow_gate: Fx,
+    /// The elbow soft stop's share of this cycle's elbow torque, N·m.
+    elbow_torque: Fx,
     /// `V_ANCHOR_MAX`·T, m.
     anchor_step: Fx,
     /// Indexing offset: indexed handle = (offset_pos + p, offset_rot ⊗ q).
@@ -452,6 +454,7 @@ impl Controller {
             elbow_k: Fx::ZERO,
             elbow_pushed: false,
             elbow_gate: Fx::ZERO,
+            elbow_torque: Fx::ZERO,
             anchor_step: Fx::ZERO,
             offset_pos: Vec3::ZERO,
             offset_rot: Quat::IDENTITY,
@@ -511,6 +514,12 @@ impl Controller {
     /// ([`ELBOW_SOFT_STOP`]).
     pub fn elbow_pushed(&self) -> bool {
         self.elbow_pushed
+    }
+
+    /// The elbow soft stop's share of the last cycle's elbow torque (after
+    /// the motor limit), N·m.
+    pub fn elbow_torque(&self) -> Fx {
+        self.elbow_torque
     }
 
     /// The elbow soft stop's stiffness, N·m/rad ([`elbow_stop_gain`]).
@@ -1091,6 +1100,7 @@ pub fn cartesian_control(
         ctrl.elbow_gate = env_now;
     }
     let elbow_pushed = ctrl.elbow_gate.0 > 0 && ps.q[2] < ELBOW_SOFT_STOP;
+    ctrl.elbow_torque = Fx::ZERO;
     if elbow_pushed {
         let mut push = ctrl
             .elbow_k
@@ -1106,7 +1116,9 @@ pub fn cartesian_control(
         if qd.0 > 0 {
             push = push.mul_sat(speed_scale(qd, Fx::ZERO, ELBOW_STOP_RELEASE));
         }
+        let before = fixed[2];
         fixed[2] = fixed[2].add_sat(push).clamp_abs(arm::TAU_MAX[2]);
+        ctrl.elbow_torque = fixed[2].sub_sat(before);
     }
     ctrl.elbow_pushed = elbow_pushed;
     // The coupling's scale from the joint speeds: 1 below the joint

@@ -34,6 +34,9 @@ pub struct Figures {
     pub passivity_cycles: u64,
     /// Cycles in which the elbow's soft stop pushed.
     pub elbow_stop_cycles: u64,
+    /// Lowest energy of the elbow's soft stop at the motors, J: its share
+    /// of the elbow's dissipation less the work its torque did on the arm.
+    pub worst_elbow_ledger: f64,
     pub link_loss_events: u64,
     pub link_loss_unfaded: u64,
     pub resumes: u64,
@@ -59,6 +62,7 @@ impl Figures {
         Figures {
             worst_ledger: f64::INFINITY,
             worst_observer: f64::INFINITY,
+            worst_elbow_ledger: f64::INFINITY,
             ..Default::default()
         }
     }
@@ -84,6 +88,7 @@ impl Figures {
         self.worst_joint_speed_ratio = self.worst_joint_speed_ratio.max(o.worst_joint_speed_ratio);
         self.worst_ledger = self.worst_ledger.min(o.worst_ledger);
         self.worst_observer = self.worst_observer.min(o.worst_observer);
+        self.worst_elbow_ledger = self.worst_elbow_ledger.min(o.worst_elbow_ledger);
         self.worst_motor_mismatch = self.worst_motor_mismatch.max(o.worst_motor_mismatch);
         self.cuts += o.cuts;
         self.cut_nonzero += o.cut_nonzero;
@@ -118,6 +123,10 @@ impl Figures {
         println!(
             "  worst coupling energy (motor-side ledger) {:.3e} J, observer {:.3e} J; fail-safe cuts {}, cycles with torque ≠ 0 after a cut {}",
             self.worst_ledger, self.worst_observer, self.cuts, self.cut_nonzero
+        );
+        println!(
+            "  worst energy of the elbow's soft stop at the motors {:.3e} J",
+            self.worst_elbow_ledger
         );
     }
 }
@@ -234,6 +243,7 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         speed_bound: handle_speed_bound(period_ns),
         worst_ledger: f64::INFINITY,
         worst_observer: f64::INFINITY,
+        worst_elbow_ledger: f64::INFINITY,
         ..Default::default()
     };
     let ramp_step = f(c.servo.controller().ramp_step());
@@ -268,6 +278,10 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
     let mut prev_fixed_tau = [0.0f64; 6];
     let mut prev_applied = [0.0f64; 6];
     let mut prev_elbow_pushed = false;
+    // The elbow soft stop's torque the motors held over the last period,
+    // and its ledger (it starts off, storing nothing).
+    let mut prev_elbow_tau = 0.0f64;
+    let mut elbow_ledger = 0.0f64;
     let mut ledger: Option<f64> = None;
     let mut in_loss = false;
     let mut loss_unfaded = false;
@@ -720,6 +734,23 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
             ledger = None;
             prev_target = None;
         }
+        // The elbow soft stop at the motors: the work of the torque it added
+        // (as held over the period) on the elbow, against the share of the
+        // elbow's dissipation it is given (`½K_e Δq₃²` after a push). A
+        // spring that only takes energy from the arm keeps this ≥ 0.
+        if let Some(pq) = prev_q {
+            let dq = f(log.q[2]) - f(pq[2]);
+            if prev_elbow_pushed {
+                elbow_ledger += 0.5 * f(c.servo.controller().elbow_gain()) * dq * dq;
+            }
+            elbow_ledger -= prev_elbow_tau * dq;
+            figs.worst_elbow_ledger = figs.worst_elbow_ledger.min(elbow_ledger);
+        }
+        prev_elbow_tau = if enabled {
+            f(c.servo.controller().elbow_torque())
+        } else {
+            0.0
+        };
         prev_q = Some(log.q);
         prev_hw = out.handle_wrench;
         prev_elbow_pushed = c.servo.controller().elbow_pushed();
@@ -750,6 +781,11 @@ pub fn run(seed: u64, period_us: u32, cycles: u64) -> Figures {
         figs.worst_observer > -1e-6,
         "seed {seed} at {period_us} µs: observer {:.3e} J",
         figs.worst_observer
+    );
+    assert!(
+        figs.worst_elbow_ledger > -1e-6,
+        "seed {seed} at {period_us} µs: elbow soft stop energy {:.3e} J",
+        figs.worst_elbow_ledger
     );
     figs
 }
