@@ -10,7 +10,9 @@
 #
 # Asserts the link's done-when: the handle stays coupled (the module's
 # position log: every cycle in session with a VPr at full link gain, no
-# fade event), no deadline miss, no fail-safe, and every count reconciles
+# fade event; where the host itself stalled the link beyond the fade's
+# start in guest time, as the proxy's trace shows, no more fades than such
+# stalls), no deadline miss, no fail-safe, and every count reconciles
 # component by component (client -> proxy -> QEMU -> bridge -> module and
 # back). Prints every figure: the proxy's counters per direction, the
 # bridge's refusals by reason (reordered and duplicated frames meet
