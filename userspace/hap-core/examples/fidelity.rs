@@ -361,16 +361,59 @@ fn recovery() {
     }
 }
 
+/// The arm's own viscous drag along `u` at `speed` at the pose `q`, N: the
+/// force a hand holding only the handle's position (no torque) pushes to
+/// move it at that speed through the joint dampers alone,
+/// `speed · uᵀ (J_v D⁻¹ J_vᵀ)⁻¹ u` (f64).
+fn viscous_drag(q: &Joints, u: [f64; 3], speed: f64) -> f64 {
+    let j = arm::kinematics(q).jacobian();
+    let mut m = [[0.0f64; 3]; 3];
+    for (col, b) in j.iter().zip(arm::DAMPING.iter()) {
+        let c = v3(col.linear);
+        for r in 0..3 {
+            for k in 0..3 {
+                m[r][k] += c[r] * c[k] / f(*b);
+            }
+        }
+    }
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    let mut x = 0.0;
+    for r in 0..3 {
+        for k in 0..3 {
+            // (M⁻¹)[r][k] = cofactor[k][r] / det.
+            let (k1, k2, r1, r2) = ((k + 1) % 3, (k + 2) % 3, (r + 1) % 3, (r + 2) % 3);
+            let inv = (m[k1][r1] * m[k2][r2] - m[k1][r2] * m[k2][r1]) / det;
+            x += u[r] * inv * u[k];
+        }
+    }
+    speed * x
+}
+
+/// What the hand felt while driving the handle at a constant speed.
+struct Drag {
+    /// Mean force along the motion the hand pushed, N.
+    push: f64,
+    /// Of it, what the arm's joint dampers took: their mean power
+    /// `Σ b_i q̇_i²` over the speed, N.
+    dampers: f64,
+    /// Alarms raised meanwhile.
+    alarms: u32,
+}
+
 /// The hand drives the handle at a constant speed (a stiff hand:
-/// 3000 N/m, 60 N·s/m around a point moving at `speed`); returns the mean
-/// force along the motion the hand pushes while moving (after 60 mm).
-fn drag(us: u32, q: &Joints, u: [f64; 3], speed: f64, coupled: bool) -> (f64, u32) {
+/// 3000 N/m, 60 N·s/m around a point moving at `speed`); the mean force
+/// along the motion the hand pushes while moving (after 60 mm), and the
+/// share of it the arm's joint dampers dissipate.
+fn drag(us: u32, q: &Joints, u: [f64; 3], speed: f64, coupled: bool) -> Drag {
     let mut rig = Rig::new(us, q, coupled);
     rig.follow = Some(((3e-3 / rig.period_s).round() as usize).max(1));
     let (mut p, mut v, _) = rig.step([0.0; 3]);
     let p0 = p;
     let (kh, bh) = (3000.0, 60.0);
     let mut acc = 0.0;
+    let mut damp = 0.0;
     let mut n_acc = 0usize;
     let mut alarms = 0u32;
     let travel = 0.12;
@@ -394,9 +437,19 @@ fn drag(us: u32, q: &Joints, u: [f64; 3], speed: f64, coupled: bool) -> (f64, u3
             acc += along;
             n_acc += 1;
             alarms |= rig.c.servo.vp().alarms;
+            let qd = rig.c.servo.simulator().qd;
+            damp += (0..6)
+                .map(|i| f(arm::DAMPING[i]) * f(qd[i]) * f(qd[i]))
+                .sum::<f64>()
+                / speed;
         }
     }
-    (acc / n_acc.max(1) as f64, alarms)
+    let n = n_acc.max(1) as f64;
+    Drag {
+        push: acc / n,
+        dampers: damp / n,
+        alarms,
+    }
 }
 
 /// Directions with free travel from each pose: toward the base (radial
@@ -416,20 +469,23 @@ fn drag_table() {
     );
     println!("(the client's object follows the handle every 3 ms; \"off\": coupling off, gravity compensation and brakes only; mean over the last half of 0.12 m)");
     println!();
-    println!("| period | pose | axis | 0.1 m/s (N) | 0.5 m/s (N) | 1 m/s (N) | 0.5 m/s, coupling off (N) | brakes or stops acting at 0.5 m/s |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("(\"of which the arm's dampers\": with the coupling off, the power the arm's own joint dampers took, Σ b_i q̇_i², over the speed: what no coupling adds and only the plant takes)");
+    println!();
+    println!("| period | pose | axis | 0.1 m/s (N) | 0.5 m/s (N) | 1 m/s (N) | 0.5 m/s, coupling off (N) | of which the arm's dampers (N) | brakes or stops acting at 0.5 m/s |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     let mut worst05: f64 = 0.0;
     // The bench's hand (3000 N/m, 60 N·s/m) is sampled at the servo
     // period: at 10 ms it is not a stable hand, so 10 ms is left out.
     for &us in &PERIODS_US[..3] {
         for (pname, q) in poses() {
             for (aname, u) in free_axes(&q) {
-                let a = drag(us, &q, u, 0.1, true).0;
-                let (b, al) = drag(us, &q, u, 0.5, true);
-                let c = drag(us, &q, u, 1.0, true).0;
-                let (d, al_off) = drag(us, &q, u, 0.5, false);
+                let a = drag(us, &q, u, 0.1, true).push;
+                let on = drag(us, &q, u, 0.5, true);
+                let c = drag(us, &q, u, 1.0, true).push;
+                let off = drag(us, &q, u, 0.5, false);
+                let (b, d) = (on.push, off.push);
                 worst05 = worst05.max(b.abs()).max(d.abs());
-                let al = al | al_off;
+                let al = on.alarms | off.alarms;
                 let mut why = Vec::new();
                 if al & hap_core::vp::alarm::VELOCITY_LIMIT != 0 {
                     why.push("velocity brake");
@@ -443,7 +499,8 @@ fn drag_table() {
                     why.join(", ")
                 };
                 println!(
-                    "| {us} µs | {pname} | {aname} | {a:.2} | {b:.2} | {c:.2} | {d:.2} | {why} |"
+                    "| {us} µs | {pname} | {aname} | {a:.2} | {b:.2} | {c:.2} | {d:.2} | {:.2} | {why} |",
+                    off.dampers
                 );
             }
         }
@@ -460,26 +517,43 @@ fn speed_table() {
         "## Largest powered handle speed under a constant 25 N push (2 s or until a joint stop)"
     );
     println!();
-    println!("| period | pose | axis | capacity (N) | coupling off (m/s) | coupling on, object following (m/s) |");
-    println!("|---|---|---|---|---|---|");
+    println!("(where the handle first passes 2 m/s with the coupling on: the push's component along the motion, and the most the arm could oppose the motion there, the motors' capacity against it plus the arm's own viscous drag at 2 m/s along it, 2·v̂ᵀ(J_v D⁻¹ J_vᵀ)⁻¹v̂; where the push is the larger, no controller keeps the handle under 2 m/s)");
+    println!();
+    println!("| period | pose | axis | capacity at the start (N) | at 2 m/s: push along the motion (N) | at 2 m/s: most the arm can oppose (N) | coupling off (m/s) | coupling on, object following (m/s) |");
+    println!("|---|---|---|---|---|---|---|---|");
     let mut worst: f64 = 0.0;
     for &us in &PERIODS_US {
         for (pname, q) in poses() {
             for (aname, u) in free_axes(&q) {
                 let mut cells = Vec::new();
+                // Coupling on, where the handle first passes 2 m/s: the
+                // push along the motion there and the most the arm could
+                // oppose it (the motors' capacity against the motion plus
+                // the arm's own viscous drag at 2 m/s along it).
+                let mut at_2 = None;
                 for coupled in [false, true] {
                     let mut rig = Rig::new(us, &q, coupled);
                     rig.follow = Some(((3e-3 / rig.period_s).round() as usize).max(1));
                     let mut vmax: f64 = 0.0;
                     for _ in 0..rig.cycles(2.0) {
                         let (_, v, _) = rig.step(u.map(|x| x * 25.0));
-                        vmax = vmax.max(norm(v));
+                        let speed = norm(v);
+                        vmax = vmax.max(speed);
+                        if coupled && at_2.is_none() && speed > 2.0 {
+                            let qq = rig.c.servo.simulator().q;
+                            let vh = v.map(|x| x / speed);
+                            let push = 25.0 * (0..3).map(|i| u[i] * vh[i]).sum::<f64>();
+                            at_2 = Some((push, capacity(&qq, vh) + viscous_drag(&qq, vh, 2.0)));
+                        }
                     }
                     worst = worst.max(vmax);
                     cells.push(vmax);
                 }
+                let (push, hold) = at_2
+                    .map(|(p, h)| (format!("{p:.1}"), format!("{h:.1}")))
+                    .unwrap_or_else(|| ("—".into(), "—".into()));
                 println!(
-                    "| {us} µs | {pname} | {aname} | {:.1} | {:.2} | {:.2} |",
+                    "| {us} µs | {pname} | {aname} | {:.1} | {push} | {hold} | {:.2} | {:.2} |",
                     capacity(&q, u),
                     cells[0],
                     cells[1]
