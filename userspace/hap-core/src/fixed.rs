@@ -540,27 +540,88 @@ const fn frac_q32_bitwise(mut r: u64, b: u64) -> u64 {
     f
 }
 
-/// `floor(sqrt(n))`: Newton's iteration from a power of two at or above the
-/// root (`x + n/x` < 2^33: no overflow); the sequence decreases to the
-/// floor and stops there. Five to six hardware divisions instead of a
-/// 32-step bit loop; the same result.
+/// `floor(sqrt(n))`: Newton's iteration `x ← ⌊(x + ⌊n/x⌋)/2⌋` from a
+/// start at or above the root, taken from [`SQRT_START`] by the top bits
+/// of `n` (within 0.8 % of it); every step stays at or above the floor of
+/// the root and falls strictly while `x² > n`, so the first `x` with
+/// `x² ≤ n` is the floor. Three divisions or so, where the former start
+/// (a power of two) took five to six, and the same result.
 const fn isqrt_u64(n: u64) -> u64 {
     if n < 2 {
         return n;
     }
-    let bits = 64 - n.leading_zeros();
-    let mut x: u64 = 1 << bits.div_ceil(2);
-    loop {
+    // n·4^e in [2^62, 2^64): its top byte t in [64, 255], and
+    // √n ≤ √((t+1)·2^56) / 2^e ≤ (SQRT_START[t − 64] + 1) / 2^e.
+    let e = n.leading_zeros() / 2;
+    let t = (n << (2 * e)) >> 56;
+    let tab = SQRT_START.len() as u64;
+    let i = t.wrapping_sub(64);
+    let s0 = if i < tab {
+        SQRT_START[i as usize] as u64
+    } else {
+        u32::MAX as u64
+    };
+    // ⌊s0 / 2^e⌋ + 1 ≥ (s0 + 1) / 2^e; the floor of the root is below
+    // 2^32, so the start may be capped there, and x·x never overflows.
+    let mut x = (s0 >> e).wrapping_add(1);
+    if x > u32::MAX as u64 {
+        x = u32::MAX as u64;
+    }
+    while x.wrapping_mul(x) > n {
+        // x > √n ≥ 1: the fallback is never taken (no panic path).
         let q = match n.checked_div(x) {
             Some(q) => q,
             None => return 0,
         };
-        let y = x.saturating_add(q) >> 1;
-        if y >= x {
-            return x;
-        }
-        x = y;
+        // x < 2^32 and q < √n < 2^32: the sum fits.
+        x = x.wrapping_add(q) >> 1;
     }
+    x
+}
+
+/// `⌈√((t+1)·2^56)⌉ − 1` for t in [64, 255] (the last is 2^32 − 1): the
+/// start of [`isqrt_u64`] for an `n` normalised to [2^62, 2^64) by an even
+/// shift, whose top byte is t, at most 1/(2t) above its root.
+const SQRT_START: [u32; 192] = {
+    let mut tab = [0u32; 192];
+    let mut i = 0;
+    while i < 192 {
+        let m = ((i as u64) + 65) << 56;
+        tab[i] = if i == 191 {
+            u32::MAX
+        } else {
+            let r = isqrt_bitwise(m);
+            // ⌈√m⌉ − 1: r − 1 when m is a square, else r.
+            if r * r == m {
+                (r - 1) as u32
+            } else {
+                r as u32
+            }
+        };
+        i += 1;
+    }
+    tab
+};
+
+/// `floor(sqrt(n))` digit by digit (compile time only: [`SQRT_START`], and
+/// the reference in the tests).
+const fn isqrt_bitwise(n: u64) -> u64 {
+    let mut rem = n;
+    let mut root = 0u64;
+    let mut bit = 1u64 << 62;
+    while bit > rem {
+        bit >>= 2;
+    }
+    while bit != 0 {
+        if rem >= root + bit {
+            rem -= root + bit;
+            root = (root >> 1) + bit;
+        } else {
+            root >>= 1;
+        }
+        bit >>= 2;
+    }
+    root
 }
 
 /// sin and cos of |x| <= π/4 (slightly more is fine).
@@ -741,6 +802,18 @@ pub(crate) const fn unit30(u: Fx) -> i64 {
     }
 }
 
+/// `⌊x²/2^32⌋` for `|x| < 2^47` raw: exactly `Fx(x).mul_sat(Fx(x))` (its
+/// fast path is that exact floor, and x² = |x|²), as an unsigned value
+/// below 2^62 + 2^49: `h² < 2^30` shifted by 32, `2·h·l < 2^48`.
+#[inline(always)]
+const fn sq_small(x: i64) -> u64 {
+    let u = x.unsigned_abs();
+    let (h, l) = (u >> 32, u & 0xFFFF_FFFF);
+    (h.wrapping_mul(h) << 32)
+        .wrapping_add(h.wrapping_mul(l) << 1)
+        .wrapping_add(l.wrapping_mul(l) >> 32)
+}
+
 /// A 3-vector of `Fx`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Vec3 {
@@ -865,38 +938,65 @@ impl Vec3 {
         if lz <= 17 {
             // |component| >= 2^14: the squares could saturate (the norm would
             // come out near sqrt(MAX) ~ 46341 whatever the vector). Scale down
-            // below 2^46 raw first, then back up, saturating at MAX.
+            // to at most 2^46 raw first, then back up, saturating at MAX.
             let d = 18 - lz;
             let v = Vec3::new(Fx(self.x.0 >> d), Fx(self.y.0 >> d), Fx(self.z.0 >> d));
-            let n = v.norm_sq().sqrt().0;
+            let n = Fx(v.sum_sq_small() as i64).sqrt().0;
             return if n > (i64::MAX >> d) {
                 Fx::MAX
             } else {
                 Fx(n << d)
             };
         }
-        // Small vectors: shift so that the largest component stays below
-        // 2^30 raw (0.25), by at most 16 bits.
+        let k = Vec3::small_shift(lz);
+        Fx(Fx(self.shifted_sum_sq(k) as i64).sqrt().0 >> k)
+    }
+
+    /// How far [`Vec3::norm`] shifts a vector whose largest component is
+    /// below 2^46 raw (`lz`, its leading zeros, ≥ 18) before squaring: so
+    /// that the largest component stays below 2^30 raw (0.25), by at most
+    /// 16 bits.
+    #[inline(always)]
+    const fn small_shift(lz: u32) -> u32 {
         let k = lz.saturating_sub(34);
-        let k = if k > 16 { 16 } else { k };
-        if k == 0 {
-            return self.norm_sq().sqrt();
+        if k > 16 {
+            16
+        } else {
+            k
         }
-        let v = Vec3::new(Fx(self.x.0 << k), Fx(self.y.0 << k), Fx(self.z.0 << k));
-        Fx(v.norm_sq().sqrt().0 >> k)
+    }
+
+    /// The sum of squares [`Vec3::norm`] takes the root of, for a vector
+    /// whose components are below 2^46 raw, shifted up by
+    /// `k = small_shift(..)` (then below 2^30 raw when `k > 0`).
+    #[inline(always)]
+    const fn shifted_sum_sq(self, k: u32) -> u64 {
+        Vec3::new(Fx(self.x.0 << k), Fx(self.y.0 << k), Fx(self.z.0 << k)).sum_sq_small()
+    }
+
+    /// Raw `norm_sq()` for components of at most 2^46 raw: each square is
+    /// `x.mul_sat(x)` (the exact floor of x²/2^32, its fast path, taken on
+    /// |x|) below 2^60, their sum below 2^62, so `add_sat` never saturates
+    /// and plain sums give the same value, without the range checks.
+    #[inline(always)]
+    const fn sum_sq_small(self) -> u64 {
+        sq_small(self.x.0)
+            .wrapping_add(sq_small(self.y.0))
+            .wrapping_add(sq_small(self.z.0))
     }
 
     /// Scale down so that the norm is at most `max`; returns the vector and
     /// whether it was clamped.
     pub const fn clamp_norm(self, max: Fx) -> (Vec3, bool) {
-        // Quick exit, the same result as computing the norm: below 2^46 raw
-        // `norm()` is exact shifts, floor products and a floor root, so it
-        // is at most the true norm, itself at most √3 < 2 times the largest
-        // component and at most the sum of the components' magnitudes.
         let ax = self.x.0.unsigned_abs();
         let ay = self.y.0.unsigned_abs();
         let az = self.z.0.unsigned_abs();
         if max.0 >= 0 && ax < (1 << 46) && ay < (1 << 46) && az < (1 << 46) {
+            // Quick exit, the same result as computing the norm: below 2^46
+            // raw `norm()` is exact shifts, floor products and a floor root,
+            // so it is at most the true norm, itself at most √3 < 2 times the
+            // largest component and at most the sum of the components'
+            // magnitudes.
             let mut m = ax;
             if ay > m {
                 m = ay;
@@ -909,6 +1009,23 @@ impl Vec3 {
             if bound <= max.0 as u64 {
                 return (self, false);
             }
+            // `norm()` of such a vector (m > max ≥ 0 here) is
+            // `√(s) >> k`, with s its shifted sum of squares and `√` the
+            // floor root `Fx::sqrt`, at most √(s·2^32) raw. Before the
+            // root: with M = max·2^k, s ≤ ⌊M²/2^32⌋ gives √ ≤ M and a norm
+            // at most `max`, so no clamp, as the norm would decide; s is
+            // below 2^62, so any M ≥ 2^47 passes too.
+            let k = Vec3::small_shift(m.leading_zeros());
+            let s = self.shifted_sum_sq(k);
+            let mu = max.0 as u64;
+            if mu >= (1u64 << 47) >> k || s <= sq_small((mu << k) as i64) {
+                return (self, false);
+            }
+            let n = Fx(Fx(s as i64).sqrt().0 >> k);
+            if n.0 <= max.0 || n.0 <= 0 {
+                return (self, false);
+            }
+            return (self.scale(max.div_sat(n)), true);
         }
         let n = self.norm();
         if n.0 <= max.0 || n.0 <= 0 {
@@ -1513,7 +1630,138 @@ pub const JOINTS_ZERO: Joints = [Fx::ZERO; 6];
 
 #[cfg(test)]
 mod tests {
-    use super::{frac_q32_bitwise, frac_q32_wide, udiv_q32};
+    use super::{frac_q32_bitwise, frac_q32_wide, isqrt_bitwise, isqrt_u64, udiv_q32, Fx, Vec3};
+
+    /// `Vec3::norm` as it was: the squares through `norm_sq` (`mul_sat`,
+    /// `add_sat`).
+    fn norm_reference(v: Vec3) -> Fx {
+        let m =
+            v.x.0
+                .unsigned_abs()
+                .max(v.y.0.unsigned_abs())
+                .max(v.z.0.unsigned_abs());
+        if m == 0 {
+            return Fx::ZERO;
+        }
+        let lz = m.leading_zeros();
+        if lz <= 17 {
+            let d = 18 - lz;
+            let w = Vec3::new(Fx(v.x.0 >> d), Fx(v.y.0 >> d), Fx(v.z.0 >> d));
+            let n = w.norm_sq().sqrt().0;
+            return if n > (i64::MAX >> d) {
+                Fx::MAX
+            } else {
+                Fx(n << d)
+            };
+        }
+        let k = lz.saturating_sub(34).min(16);
+        let w = Vec3::new(Fx(v.x.0 << k), Fx(v.y.0 << k), Fx(v.z.0 << k));
+        Fx(w.norm_sq().sqrt().0 >> k)
+    }
+
+    /// `Vec3::clamp_norm` as it was: the root first, then the comparison.
+    fn clamp_norm_reference(v: Vec3, max: Fx) -> (Vec3, bool) {
+        let n = norm_reference(v);
+        if n.0 <= max.0 || n.0 <= 0 {
+            return (v, false);
+        }
+        if n.0 == i64::MAX {
+            let w = Vec3::new(Fx(v.x.0 >> 2), Fx(v.y.0 >> 2), Fx(v.z.0 >> 2));
+            let n = norm_reference(w);
+            let u = Vec3::new(w.x.div_sat(n), w.y.div_sat(n), w.z.div_sat(n));
+            return (u.scale(max.abs()), true);
+        }
+        (v.scale(max.abs().div_sat(n)), true)
+    }
+
+    #[test]
+    fn norm_and_clamp_are_the_root_first_ones() {
+        let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        // Components of every width and sign; limits near the norm (the
+        // test before the root decides at its edge) and anywhere.
+        for i in 0..1_000_000u32 {
+            let mut c = [0i64; 3];
+            for v in &mut c {
+                let r = next();
+                *v = (r >> (r % 64)) as i64;
+                if r & (1 << 7) != 0 {
+                    *v = v.wrapping_neg();
+                }
+            }
+            let v = Vec3::new(Fx(c[0]), Fx(c[1]), Fx(c[2]));
+            let n = norm_reference(v);
+            assert_eq!(v.norm(), n, "{v:?}");
+            let r = next();
+            let max = match i % 4 {
+                0 => Fx(n.0.wrapping_add((r % 9) as i64 - 4)),
+                1 => Fx(n.0 >> 1).add_sat(Fx((r % 7) as i64 - 3)),
+                2 => Fx((r >> (r % 64)) as i64),
+                _ => Fx(n.0.wrapping_mul(3) / 2).neg_sat(),
+            };
+            assert_eq!(
+                v.clamp_norm(max),
+                clamp_norm_reference(v, max),
+                "{v:?} {max:?}"
+            );
+        }
+        // Limits at and around the square's edge for small forces.
+        for raw in [1i64, 3, 1 << 20, 1 << 31, 20 << 32, (20 << 32) + 1, 1 << 46] {
+            let v = Vec3::new(Fx(raw), Fx(-raw), Fx(raw / 3));
+            let n = norm_reference(v);
+            for d in -8..=8 {
+                let max = Fx(n.0 + d);
+                assert_eq!(
+                    v.clamp_norm(max),
+                    clamp_norm_reference(v, max),
+                    "{v:?} {max:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn newton_root_is_the_digit_by_digit_root() {
+        let mut cases = vec![0u64, 1, 2, 3, 4, u64::MAX, u64::MAX - 1, 1 << 62, 1 << 63];
+        // Around every square r² (r < 2^32 at every bit length and at the
+        // table's bucket edges) and every power of two.
+        let mut roots: Vec<u64> = (0..32).flat_map(|b| [1u64 << b, (1u64 << b) + 1]).collect();
+        roots.extend((1..32).map(|b| (1u64 << b) - 1));
+        roots.push(u64::from(u32::MAX));
+        roots.extend((64u64..256).map(|t| isqrt_bitwise((t << 56) - 1) + 1));
+        for r in roots {
+            let sq = r.wrapping_mul(r);
+            cases.extend([sq.wrapping_sub(1), sq, sq.wrapping_add(1)]);
+        }
+        for b in 0..64 {
+            cases.extend([1u64 << b, (1u64 << b).wrapping_sub(1), (1u64 << b) + 1]);
+        }
+        for t in 64u64..256 {
+            for e in 0..32 {
+                let n = (t << 56) >> (2 * e);
+                cases.extend([
+                    n,
+                    n.wrapping_sub(1),
+                    ((t + 1) << 56).wrapping_sub(1) >> (2 * e),
+                ]);
+            }
+        }
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for _ in 0..2_000_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            cases.push(x >> (x % 64));
+        }
+        for n in cases {
+            assert_eq!(isqrt_u64(n), isqrt_bitwise(n), "n {n:#x}");
+        }
+    }
 
     #[test]
     fn wide_fraction_is_the_restoring_division() {
