@@ -250,6 +250,48 @@ impl Kinematics {
         tau
     }
 
+    /// `(Jᵀ · w, J_vᵀ · f)`: the wrench's joint torques and its force's
+    /// share (`w` with its torque zeroed), exactly
+    /// `(self.jacobian_transpose_mul(w), self.jacobian_transpose_mul(&Wrench
+    /// { force: w.force, torque: Vec3::ZERO }))` for the cost of the first:
+    /// a zero torque's products are zero, and the wrapping sum of the six
+    /// products is that of the force's three plus that of the torque's.
+    pub fn jacobian_transpose_mul_split(&self, w: &Wrench) -> (Joints, Joints) {
+        let f = w.to_array().map(UnitFactor::new);
+        let (ff, ft) = f.split_at(3);
+        let mut tau = [Fx::ZERO; 6];
+        let mut tau_f = [Fx::ZERO; 6];
+        for ((t, tf), col) in tau.iter_mut().zip(tau_f.iter_mut()).zip(self.jac30.iter()) {
+            let (cf, ct) = col.split_at(3);
+            let mut s = 0i64;
+            for (fi, u) in ff.iter().zip(cf.iter()) {
+                s = s.wrapping_add(fi.mul30(*u));
+            }
+            *tf = Fx(s);
+            for (fi, u) in ft.iter().zip(ct.iter()) {
+                s = s.wrapping_add(fi.mul30(*u));
+            }
+            *t = Fx(s);
+        }
+        (tau, tau_f)
+    }
+
+    /// `J_vᵀ · f`: exactly `self.jacobian_transpose_mul(&Wrench { force: f,
+    /// torque: Vec3::ZERO })` (a zero torque's products are zero) in half
+    /// the products.
+    pub fn jacobian_transpose_mul_force(&self, f: Vec3) -> Joints {
+        let f = f.to_array().map(UnitFactor::new);
+        let mut tau = [Fx::ZERO; 6];
+        for (t, col) in tau.iter_mut().zip(self.jac30.iter()) {
+            let mut s = 0i64;
+            for (fi, u) in f.iter().zip(col.iter()) {
+                s = s.wrapping_add(fi.mul30(*u));
+            }
+            *t = Fx(s);
+        }
+        tau
+    }
+
     /// `R · v` for the handle rotation: exactly `handle_rot().mul_vec_unit(v)`.
     pub fn rot_mul(&self, v: Vec3) -> Vec3 {
         let f = v.to_array().map(UnitFactor::new);

@@ -1224,8 +1224,9 @@ pub fn cartesian_control(
             push_s = s_push;
         }
     }
-    // One product in the common case: the whole wrench fits.
-    let tau_w = kin.jacobian_transpose_mul(&handle_wrench);
+    // One product: the whole wrench's joint torques, and the force's
+    // share for the split below.
+    let (tau_w, tau_f) = kin.jacobian_transpose_mul_split(&handle_wrench);
     let fits = tau_w
         .iter()
         .zip(fixed.iter())
@@ -1234,10 +1235,6 @@ pub fn cartesian_control(
     let (mut s_f, mut s_t) = (Fx::ONE, Fx::ONE);
     let mut tau_c = tau_w;
     if !fits {
-        let tau_f = kin.jacobian_transpose_mul(&Wrench {
-            force: handle_wrench.force,
-            torque: Vec3::ZERO,
-        });
         // Jᵀ is linear: the torque's share is what is left of the whole.
         let mut tau_t = JOINTS_ZERO;
         for ((tt, tw), tf) in tau_t.iter_mut().zip(tau_w.iter()).zip(tau_f.iter()) {
@@ -1290,10 +1287,7 @@ pub fn cartesian_control(
         // −B_c (|v| − v_on) v̂, as one vector scaled to the motors' room.
         let mag = ctrl.brake_lin.mul_sat(v_lin.sub_sat(V_BRAKE_ONSET));
         let f_b = v_h.scale(mag.div_sat(v_lin)).neg();
-        let brake_tau = kin.jacobian_transpose_mul(&Wrench {
-            force: f_b,
-            torque: Vec3::ZERO,
-        });
+        let brake_tau = kin.jacobian_transpose_mul_force(f_b);
         let mut sb = Fx::ONE;
         for (((bt, tf), tc), lim) in brake_tau
             .iter()
