@@ -210,13 +210,7 @@ impl Fx {
         if (a.wrapping_add(1 << 47) as u64) < (1 << 48)
             && (b.wrapping_add(1 << 47) as u64) < (1 << 48)
         {
-            let (ah, al) = (a >> 32, a & 0xFFFF_FFFF);
-            let (bh, bl) = (b >> 32, b & 0xFFFF_FFFF);
-            let lo = (((al as u64).wrapping_mul(bl as u64)) >> 32) as i64;
-            return Fx((ah.wrapping_mul(bh) << 32)
-                .wrapping_add(ah.wrapping_mul(bl))
-                .wrapping_add(al.wrapping_mul(bh))
-                .wrapping_add(lo));
+            return Fx(mul_fast(a, b));
         }
         let ah = a >> 32;
         let al = a & 0xFFFF_FFFF;
@@ -802,6 +796,28 @@ pub(crate) const fn unit30(u: Fx) -> i64 {
     }
 }
 
+/// Whether all four raws are in [−2^47, 2^47), the range of
+/// [`Fx::mul_sat`]'s fast path (for both factors).
+#[inline(always)]
+const fn in_fast_range(a: i64, b: i64, c: i64, d: i64) -> bool {
+    const R: i64 = 1 << 47;
+    ((a.wrapping_add(R) | b.wrapping_add(R) | c.wrapping_add(R) | d.wrapping_add(R)) as u64)
+        < (1 << 48)
+}
+
+/// [`Fx::mul_sat`]'s fast path: the exact floor of a·b/2^32 for a, b in
+/// [−2^47, 2^47) (see there), below 2^62 in magnitude.
+#[inline(always)]
+const fn mul_fast(a: i64, b: i64) -> i64 {
+    let (ah, al) = (a >> 32, a & 0xFFFF_FFFF);
+    let (bh, bl) = (b >> 32, b & 0xFFFF_FFFF);
+    let lo = (((al as u64).wrapping_mul(bl as u64)) >> 32) as i64;
+    (ah.wrapping_mul(bh) << 32)
+        .wrapping_add(ah.wrapping_mul(bl))
+        .wrapping_add(al.wrapping_mul(bh))
+        .wrapping_add(lo)
+}
+
 /// `⌊x²/2^32⌋` for `|x| < 2^47` raw: exactly `Fx(x).mul_sat(Fx(x))` (its
 /// fast path is that exact floor, and x² = |x|²), as an unsigned value
 /// below 2^62 + 2^49: `h² < 2^30` shifted by 32, `2·h·l < 2^48`.
@@ -881,7 +897,28 @@ impl Vec3 {
 
     #[inline(never)]
     const fn scale_products(self, k: Fx) -> Vec3 {
+        // All four in mul_sat's fast range (one test for the four): its
+        // fast products, without the saturating path's registers.
+        if in_fast_range(k.0, self.x.0, self.y.0, self.z.0) {
+            return Vec3::new(
+                Fx(mul_fast(self.x.0, k.0)),
+                Fx(mul_fast(self.y.0, k.0)),
+                Fx(mul_fast(self.z.0, k.0)),
+            );
+        }
+        self.scale_products_wide(k)
+    }
+
+    #[cold]
+    #[inline(never)]
+    const fn scale_products_wide(self, k: Fx) -> Vec3 {
         Vec3::new(self.x.mul_sat(k), self.y.mul_sat(k), self.z.mul_sat(k))
+    }
+
+    /// Every component doubled: exactly `self.scale(Fx::TWO)` (`mul_sat` by
+    /// 2 is the doubling, saturating at `MAX`/`MIN`), without the products.
+    pub const fn twice(self) -> Vec3 {
+        Vec3::new(self.x.mul_int(2), self.y.mul_int(2), self.z.mul_int(2))
     }
 
     /// Every component halved: exactly `self.scale(Fx::HALF)`.
@@ -890,6 +927,19 @@ impl Vec3 {
     }
 
     pub const fn dot(self, o: Vec3) -> Fx {
+        // All six in mul_sat's fast range (two tests for the six): its
+        // fast products; the sum still saturates (each is below 2^62).
+        if in_fast_range(self.x.0, self.y.0, self.z.0, 0) && in_fast_range(o.x.0, o.y.0, o.z.0, 0) {
+            return Fx(mul_fast(self.x.0, o.x.0))
+                .add_sat(Fx(mul_fast(self.y.0, o.y.0)))
+                .add_sat(Fx(mul_fast(self.z.0, o.z.0)));
+        }
+        self.dot_wide(o)
+    }
+
+    #[cold]
+    #[inline(never)]
+    const fn dot_wide(self, o: Vec3) -> Fx {
         self.x
             .mul_sat(o.x)
             .add_sat(self.y.mul_sat(o.y))
@@ -950,6 +1000,34 @@ impl Vec3 {
         }
         let k = Vec3::small_shift(lz);
         Fx(Fx(self.shifted_sum_sq(k) as i64).sqrt().0 >> k)
+    }
+
+    /// `Some(self.norm())` when `self.norm_sq() > t2`, else `None`: the
+    /// norm only where the squared test passes, and from the same sum of
+    /// squares where that is the root's (components of 2^30 to 2^46 raw:
+    /// the norm takes the root of `norm_sq` unshifted, and it cannot
+    /// saturate).
+    pub const fn norm_where_sq_above(self, t2: Fx) -> Option<Fx> {
+        let ax = self.x.0.unsigned_abs();
+        let ay = self.y.0.unsigned_abs();
+        let az = self.z.0.unsigned_abs();
+        let mut m = ax;
+        if ay > m {
+            m = ay;
+        }
+        if az > m {
+            m = az;
+        }
+        if m >= (1 << 30) && m < (1 << 46) {
+            // small_shift(leading zeros) = 0 here.
+            let s = Fx(self.sum_sq_small() as i64);
+            return if s.0 > t2.0 { Some(s.sqrt()) } else { None };
+        }
+        if self.norm_sq().0 > t2.0 {
+            Some(self.norm())
+        } else {
+            None
+        }
     }
 
     /// How far [`Vec3::norm`] shifts a vector whose largest component is
@@ -1329,7 +1407,7 @@ impl Quat {
     #[inline(never)]
     const fn rotate_products(&self, v: Vec3) -> Vec3 {
         let u = self.vec();
-        let t = u.cross(v).scale(Fx::TWO);
+        let t = u.cross(v).twice();
         v.add(t.scale(self.w)).add(u.cross(t))
     }
 
@@ -1447,7 +1525,7 @@ impl Quat {
     /// `2·sin(θ/2)` (≤ 2), the gradient of the potential `4(1 − cos(θ/2))`.
     pub const fn error_vector(&self, b: &Quat) -> Vec3 {
         let e = self.mul(&b.conjugate());
-        let v = e.vec().scale(Fx::TWO);
+        let v = e.vec().twice();
         if e.w.0 < 0 {
             v.neg()
         } else {
