@@ -1158,8 +1158,9 @@ pub fn cartesian_control(
     }
     // |v| only above the onset (compared squared first: no root in the
     // common case).
-    let fast = v_h.norm_sq() > V_BRAKE_ONSET.mul_sat(V_BRAKE_ONSET);
-    let v_lin = if fast { v_h.norm() } else { Fx::ZERO };
+    let v_norm = v_h.norm_where_sq_above(V_BRAKE_ONSET.mul_sat(V_BRAKE_ONSET));
+    let fast = v_norm.is_some();
+    let v_lin = v_norm.unwrap_or(Fx::ZERO);
 
     // ---- Coupling torques: force first. The force's joint torques J_vᵀf
     // get the largest scale s_f ≤ 1 the motors' room (left by gravity
