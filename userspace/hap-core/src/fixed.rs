@@ -1367,7 +1367,23 @@ impl Quat {
 
     /// Exact normalisation (sqrt + division); identity for a zero quaternion.
     pub const fn normalize(&self) -> Quat {
-        let n = self.norm_sq().sqrt();
+        const R: i64 = 1 << 46;
+        let (x, y, z, w) = (self.x.0, self.y.0, self.z.0, self.w.0);
+        let n = if ((x.wrapping_add(R) | y.wrapping_add(R) | z.wrapping_add(R) | w.wrapping_add(R))
+            as u64)
+            < (1 << 47)
+        {
+            // Components in [−2^46, 2^46) raw: `norm_sq`'s squares are
+            // these exact floors, at most 2^60, and their sum (at most
+            // 2^62) does not saturate.
+            Fx((sq_small(self.x.0)
+                .wrapping_add(sq_small(self.y.0))
+                .wrapping_add(sq_small(self.z.0))
+                .wrapping_add(sq_small(self.w.0))) as i64)
+        } else {
+            self.norm_sq()
+        }
+        .sqrt();
         if n.0 <= 0 {
             return Quat::IDENTITY;
         }
