@@ -953,14 +953,23 @@ pub fn cartesian_control(
             // error it made, so a target beyond `D_CLAMP` moves no energy
             // the spring does not store or give back.
             let dp_t = d.sub(clamp_vec(ctrl.prev_target.position.sub(p_h), D_CLAMP));
-            let dth_t = e.sub(clamp_vec(
-                ctrl.prev_target.orientation.error_vector(&q_h),
-                Fx::TWO,
-            ));
+            // (The same target orientation: the same error as `e`, no step,
+            // and a zero term in the sum.)
+            let dth_t = if ctrl.prev_target.orientation == t_rot {
+                Vec3::ZERO
+            } else {
+                e.sub(clamp_vec(
+                    ctrl.prev_target.orientation.error_vector(&q_h),
+                    Fx::TWO,
+                ))
+            };
             let pw = ctrl.prev_wrench;
             let avg_f = pw.force.add(w_step.force).half();
             let avg_t = pw.torque.add(w_step.torque).half();
-            let mut de = avg_f.dot(dp_t).add_sat(avg_t.dot(dth_t));
+            let mut de = avg_f.dot(dp_t);
+            if dth_t != Vec3::ZERO {
+                de = de.add_sat(avg_t.dot(dth_t));
+            }
             for ((q, q0), t) in
                 ps.q.iter()
                     .zip(ctrl.prev_q.iter())
