@@ -921,8 +921,8 @@ pub fn cartesian_control(
         // limit (and whether it saturated).
         let spring_at = |d_eff: Vec3, e_eff: Vec3| {
             Wrench {
-                force: d_eff.scale(g.k_lin).add(dv.scale(g.b_lin)),
-                torque: e_eff.scale(g.k_rot).add(dw.scale(g.b_rot)),
+                force: d_eff.scale_add(g.k_lin, dv, g.b_lin),
+                torque: e_eff.scale_add(g.k_rot, dw, g.b_rot),
             }
             .saturate(f_lim, MAX_TORQUE)
         };

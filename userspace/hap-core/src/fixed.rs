@@ -294,7 +294,13 @@ impl Fx {
         if k > 32 {
             k = 32;
         }
-        let s = isqrt_u64(a << k);
+        // Below k = 32 the shifted value's top bit is bit 62 or 63: the
+        // root's start needs no normalisation of its own.
+        let s = if k < 32 {
+            isqrt_newton(a << k, 0)
+        } else {
+            isqrt_u64(a << k)
+        };
         Fx((s << ((32 - k) / 2)) as i64)
     }
 
@@ -468,6 +474,12 @@ const fn udiv_q32(a: u64, b: u64) -> u64 {
     if b == 0 {
         return u64::MAX;
     }
+    if a < (1u64 << 32) {
+        // One division: a·2^32 fits, and its quotient is (q << 32) | frac
+        // below; q ≥ 2^31 exactly when it reaches 2^63.
+        let f = (a << 32) / b;
+        return if f >= (1u64 << 63) { u64::MAX } else { f };
+    }
     let q = a / b;
     let r = a % b;
     if q >= (1u64 << 31) {
@@ -544,9 +556,15 @@ const fn isqrt_u64(n: u64) -> u64 {
     if n < 2 {
         return n;
     }
+    isqrt_newton(n, n.leading_zeros() / 2)
+}
+
+/// [`isqrt_u64`] for `n ≥ 2` with `e` = half its leading zeros, rounded
+/// down (so that `n·4^e` is in [2^62, 2^64)).
+#[inline(always)]
+const fn isqrt_newton(n: u64, e: u32) -> u64 {
     // n·4^e in [2^62, 2^64): its top byte t in [64, 255], and
     // √n ≤ √((t+1)·2^56) / 2^e ≤ (SQRT_START[t − 64] + 1) / 2^e.
-    let e = n.leading_zeros() / 2;
     let t = (n << (2 * e)) >> 56;
     let tab = SQRT_START.len() as u64;
     let i = t.wrapping_sub(64);
@@ -913,6 +931,23 @@ impl Vec3 {
     #[inline(never)]
     const fn scale_products_wide(self, k: Fx) -> Vec3 {
         Vec3::new(self.x.mul_sat(k), self.y.mul_sat(k), self.z.mul_sat(k))
+    }
+
+    /// `self.scale(k).add(o.scale(c))` in one pass: the same value (a
+    /// factor 1 gives the same product as `scale`'s shortcut), with one
+    /// range test for the eight factors of the fast products.
+    #[inline(never)]
+    pub const fn scale_add(self, k: Fx, o: Vec3, c: Fx) -> Vec3 {
+        if in_fast_range(k.0, self.x.0, self.y.0, self.z.0)
+            && in_fast_range(c.0, o.x.0, o.y.0, o.z.0)
+        {
+            return Vec3::new(
+                Fx(mul_fast(self.x.0, k.0)).add_sat(Fx(mul_fast(o.x.0, c.0))),
+                Fx(mul_fast(self.y.0, k.0)).add_sat(Fx(mul_fast(o.y.0, c.0))),
+                Fx(mul_fast(self.z.0, k.0)).add_sat(Fx(mul_fast(o.z.0, c.0))),
+            );
+        }
+        self.scale(k).add(o.scale(c))
     }
 
     /// Every component doubled: exactly `self.scale(Fx::TWO)` (`mul_sat` by
@@ -1816,6 +1851,47 @@ mod tests {
                     "{v:?} {max:?}"
                 );
             }
+        }
+    }
+
+    /// `udiv_q32` without its one-division path for small numerators.
+    fn udiv_q32_two_step(a: u64, b: u64) -> u64 {
+        let (q, r) = (a / b, a % b);
+        if q >= (1u64 << 31) {
+            return u64::MAX;
+        }
+        let frac = if r < (1u64 << 32) {
+            (r << 32) / b
+        } else {
+            frac_q32_wide(r, b)
+        };
+        (q << 32) | frac
+    }
+
+    #[test]
+    fn small_numerator_division_is_the_two_step_one() {
+        let mut x: u64 = 0x6A09_E667_F3BC_C909;
+        let mut cases = vec![
+            (0u64, 1u64),
+            (1, 1),
+            ((1 << 31) - 1, 1),
+            (1 << 31, 1),
+            ((1 << 32) - 1, 1),
+            ((1 << 32) - 1, 2),
+            (1 << 32, 2),
+            ((1 << 32) - 1, u64::MAX),
+            (12345, 429_497),
+        ];
+        for _ in 0..1_000_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let a = (x >> 32) >> (x % 32);
+            let b = (x.rotate_left(17) >> (x % 63)).max(1);
+            cases.push((a, b));
+        }
+        for (a, b) in cases {
+            assert_eq!(udiv_q32(a, b), udiv_q32_two_step(a, b), "a {a:#x} b {b:#x}");
         }
     }
 
