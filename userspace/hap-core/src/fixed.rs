@@ -1138,7 +1138,18 @@ impl Vec3 {
             if n.0 <= max.0 || n.0 <= 0 {
                 return (self, false);
             }
-            return (self.scale(max.div_sat(n)), true);
+            // 0 ≤ max < n: `max.div_sat(n)` is this quotient (both
+            // positive), below 1 (raw below 2^32), and with components
+            // below 2^46 raw `scale` takes mul_sat's fast products.
+            let c = udiv_q32(max.0 as u64, n.0 as u64) as i64;
+            return (
+                Vec3::new(
+                    Fx(mul_fast(self.x.0, c)),
+                    Fx(mul_fast(self.y.0, c)),
+                    Fx(mul_fast(self.z.0, c)),
+                ),
+                true,
+            );
         }
         let n = self.norm();
         if n.0 <= max.0 || n.0 <= 0 {
@@ -1609,6 +1620,7 @@ impl Pose {
     };
 
     /// `self ∘ p`: the pose `p` (given in self's frame) expressed in the parent frame.
+    #[inline]
     pub const fn compose(&self, p: &Pose) -> Pose {
         Pose {
             position: self.orientation.rotate(p.position).add(self.position),
