@@ -257,21 +257,20 @@ impl Kinematics {
     /// a zero torque's products are zero, and the wrapping sum of the six
     /// products is that of the force's three plus that of the torque's.
     pub fn jacobian_transpose_mul_split(&self, w: &Wrench) -> (Joints, Joints) {
-        let f = w.to_array().map(UnitFactor::new);
-        let (ff, ft) = f.split_at(3);
+        let [f0, f1, f2, f3, f4, f5] = w.to_array().map(UnitFactor::new);
         let mut tau = [Fx::ZERO; 6];
         let mut tau_f = [Fx::ZERO; 6];
         for ((t, tf), col) in tau.iter_mut().zip(tau_f.iter_mut()).zip(self.jac30.iter()) {
-            let (cf, ct) = col.split_at(3);
-            let mut s = 0i64;
-            for (fi, u) in ff.iter().zip(cf.iter()) {
-                s = s.wrapping_add(fi.mul30(*u));
-            }
+            let [u0, u1, u2, u3, u4, u5] = *col;
+            let s = f0
+                .mul30(u0)
+                .wrapping_add(f1.mul30(u1))
+                .wrapping_add(f2.mul30(u2));
             *tf = Fx(s);
-            for (fi, u) in ft.iter().zip(ct.iter()) {
-                s = s.wrapping_add(fi.mul30(*u));
-            }
-            *t = Fx(s);
+            *t = Fx(s
+                .wrapping_add(f3.mul30(u3))
+                .wrapping_add(f4.mul30(u4))
+                .wrapping_add(f5.mul30(u5)));
         }
         (tau, tau_f)
     }
