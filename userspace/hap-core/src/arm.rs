@@ -250,6 +250,47 @@ impl Kinematics {
         tau
     }
 
+    /// `(Jᵀ · w, J_vᵀ · f)`: the wrench's joint torques and its force's
+    /// share (`w` with its torque zeroed), exactly
+    /// `(self.jacobian_transpose_mul(w), self.jacobian_transpose_mul(&Wrench
+    /// { force: w.force, torque: Vec3::ZERO }))` for the cost of the first:
+    /// a zero torque's products are zero, and the wrapping sum of the six
+    /// products is that of the force's three plus that of the torque's.
+    pub fn jacobian_transpose_mul_split(&self, w: &Wrench) -> (Joints, Joints) {
+        let [f0, f1, f2, f3, f4, f5] = w.to_array().map(UnitFactor::new);
+        let mut tau = [Fx::ZERO; 6];
+        let mut tau_f = [Fx::ZERO; 6];
+        for ((t, tf), col) in tau.iter_mut().zip(tau_f.iter_mut()).zip(self.jac30.iter()) {
+            let [u0, u1, u2, u3, u4, u5] = *col;
+            let s = f0
+                .mul30(u0)
+                .wrapping_add(f1.mul30(u1))
+                .wrapping_add(f2.mul30(u2));
+            *tf = Fx(s);
+            *t = Fx(s
+                .wrapping_add(f3.mul30(u3))
+                .wrapping_add(f4.mul30(u4))
+                .wrapping_add(f5.mul30(u5)));
+        }
+        (tau, tau_f)
+    }
+
+    /// `J_vᵀ · f`: exactly `self.jacobian_transpose_mul(&Wrench { force: f,
+    /// torque: Vec3::ZERO })` (a zero torque's products are zero) in half
+    /// the products.
+    pub fn jacobian_transpose_mul_force(&self, f: Vec3) -> Joints {
+        let f = f.to_array().map(UnitFactor::new);
+        let mut tau = [Fx::ZERO; 6];
+        for (t, col) in tau.iter_mut().zip(self.jac30.iter()) {
+            let mut s = 0i64;
+            for (fi, u) in f.iter().zip(col.iter()) {
+                s = s.wrapping_add(fi.mul30(*u));
+            }
+            *t = Fx(s);
+        }
+        tau
+    }
+
     /// `R · v` for the handle rotation: exactly `handle_rot().mul_vec_unit(v)`.
     pub fn rot_mul(&self, v: Vec3) -> Vec3 {
         let f = v.to_array().map(UnitFactor::new);

@@ -921,8 +921,8 @@ pub fn cartesian_control(
         // limit (and whether it saturated).
         let spring_at = |d_eff: Vec3, e_eff: Vec3| {
             Wrench {
-                force: d_eff.scale(g.k_lin).add(dv.scale(g.b_lin)),
-                torque: e_eff.scale(g.k_rot).add(dw.scale(g.b_rot)),
+                force: d_eff.scale_add(g.k_lin, dv, g.b_lin),
+                torque: e_eff.scale_add(g.k_rot, dw, g.b_rot),
             }
             .saturate(f_lim, MAX_TORQUE)
         };
@@ -953,14 +953,23 @@ pub fn cartesian_control(
             // error it made, so a target beyond `D_CLAMP` moves no energy
             // the spring does not store or give back.
             let dp_t = d.sub(clamp_vec(ctrl.prev_target.position.sub(p_h), D_CLAMP));
-            let dth_t = e.sub(clamp_vec(
-                ctrl.prev_target.orientation.error_vector(&q_h),
-                Fx::TWO,
-            ));
+            // (The same target orientation: the same error as `e`, no step,
+            // and a zero term in the sum.)
+            let dth_t = if ctrl.prev_target.orientation == t_rot {
+                Vec3::ZERO
+            } else {
+                e.sub(clamp_vec(
+                    ctrl.prev_target.orientation.error_vector(&q_h),
+                    Fx::TWO,
+                ))
+            };
             let pw = ctrl.prev_wrench;
             let avg_f = pw.force.add(w_step.force).half();
             let avg_t = pw.torque.add(w_step.torque).half();
-            let mut de = avg_f.dot(dp_t).add_sat(avg_t.dot(dth_t));
+            let mut de = avg_f.dot(dp_t);
+            if dth_t != Vec3::ZERO {
+                de = de.add_sat(avg_t.dot(dth_t));
+            }
             for ((q, q0), t) in
                 ps.q.iter()
                     .zip(ctrl.prev_q.iter())
@@ -1158,8 +1167,9 @@ pub fn cartesian_control(
     }
     // |v| only above the onset (compared squared first: no root in the
     // common case).
-    let fast = v_h.norm_sq() > V_BRAKE_ONSET.mul_sat(V_BRAKE_ONSET);
-    let v_lin = if fast { v_h.norm() } else { Fx::ZERO };
+    let v_norm = v_h.norm_where_sq_above(V_BRAKE_ONSET.mul_sat(V_BRAKE_ONSET));
+    let fast = v_norm.is_some();
+    let v_lin = v_norm.unwrap_or(Fx::ZERO);
 
     // ---- Coupling torques: force first. The force's joint torques J_vᵀf
     // get the largest scale s_f ≤ 1 the motors' room (left by gravity
@@ -1224,8 +1234,9 @@ pub fn cartesian_control(
             push_s = s_push;
         }
     }
-    // One product in the common case: the whole wrench fits.
-    let tau_w = kin.jacobian_transpose_mul(&handle_wrench);
+    // One product: the whole wrench's joint torques, and the force's
+    // share for the split below.
+    let (tau_w, tau_f) = kin.jacobian_transpose_mul_split(&handle_wrench);
     let fits = tau_w
         .iter()
         .zip(fixed.iter())
@@ -1234,10 +1245,6 @@ pub fn cartesian_control(
     let (mut s_f, mut s_t) = (Fx::ONE, Fx::ONE);
     let mut tau_c = tau_w;
     if !fits {
-        let tau_f = kin.jacobian_transpose_mul(&Wrench {
-            force: handle_wrench.force,
-            torque: Vec3::ZERO,
-        });
         // Jᵀ is linear: the torque's share is what is left of the whole.
         let mut tau_t = JOINTS_ZERO;
         for ((tt, tw), tf) in tau_t.iter_mut().zip(tau_w.iter()).zip(tau_f.iter()) {
@@ -1290,10 +1297,7 @@ pub fn cartesian_control(
         // −B_c (|v| − v_on) v̂, as one vector scaled to the motors' room.
         let mag = ctrl.brake_lin.mul_sat(v_lin.sub_sat(V_BRAKE_ONSET));
         let f_b = v_h.scale(mag.div_sat(v_lin)).neg();
-        let brake_tau = kin.jacobian_transpose_mul(&Wrench {
-            force: f_b,
-            torque: Vec3::ZERO,
-        });
+        let brake_tau = kin.jacobian_transpose_mul_force(f_b);
         let mut sb = Fx::ONE;
         for (((bt, tf), tc), lim) in brake_tau
             .iter()

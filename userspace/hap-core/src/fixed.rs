@@ -210,13 +210,7 @@ impl Fx {
         if (a.wrapping_add(1 << 47) as u64) < (1 << 48)
             && (b.wrapping_add(1 << 47) as u64) < (1 << 48)
         {
-            let (ah, al) = (a >> 32, a & 0xFFFF_FFFF);
-            let (bh, bl) = (b >> 32, b & 0xFFFF_FFFF);
-            let lo = (((al as u64).wrapping_mul(bl as u64)) >> 32) as i64;
-            return Fx((ah.wrapping_mul(bh) << 32)
-                .wrapping_add(ah.wrapping_mul(bl))
-                .wrapping_add(al.wrapping_mul(bh))
-                .wrapping_add(lo));
+            return Fx(mul_fast(a, b));
         }
         let ah = a >> 32;
         let al = a & 0xFFFF_FFFF;
@@ -300,7 +294,13 @@ impl Fx {
         if k > 32 {
             k = 32;
         }
-        let s = isqrt_u64(a << k);
+        // Below k = 32 the shifted value's top bit is bit 62 or 63: the
+        // root's start needs no normalisation of its own.
+        let s = if k < 32 {
+            isqrt_newton(a << k, 0)
+        } else {
+            isqrt_u64(a << k)
+        };
         Fx((s << ((32 - k) / 2)) as i64)
     }
 
@@ -474,6 +474,12 @@ const fn udiv_q32(a: u64, b: u64) -> u64 {
     if b == 0 {
         return u64::MAX;
     }
+    if a < (1u64 << 32) {
+        // One division: a·2^32 fits, and its quotient is (q << 32) | frac
+        // below; q ≥ 2^31 exactly when it reaches 2^63.
+        let f = (a << 32) / b;
+        return if f >= (1u64 << 63) { u64::MAX } else { f };
+    }
     let q = a / b;
     let r = a % b;
     if q >= (1u64 << 31) {
@@ -540,27 +546,94 @@ const fn frac_q32_bitwise(mut r: u64, b: u64) -> u64 {
     f
 }
 
-/// `floor(sqrt(n))`: Newton's iteration from a power of two at or above the
-/// root (`x + n/x` < 2^33: no overflow); the sequence decreases to the
-/// floor and stops there. Five to six hardware divisions instead of a
-/// 32-step bit loop; the same result.
+/// `floor(sqrt(n))`: Newton's iteration `x ← ⌊(x + ⌊n/x⌋)/2⌋` from a
+/// start at or above the root, taken from [`SQRT_START`] by the top bits
+/// of `n` (within 0.8 % of it); every step stays at or above the floor of
+/// the root and falls strictly while `x² > n`, so the first `x` with
+/// `x² ≤ n` is the floor. Three divisions or so, where the former start
+/// (a power of two) took five to six, and the same result.
 const fn isqrt_u64(n: u64) -> u64 {
     if n < 2 {
         return n;
     }
-    let bits = 64 - n.leading_zeros();
-    let mut x: u64 = 1 << bits.div_ceil(2);
-    loop {
+    isqrt_newton(n, n.leading_zeros() / 2)
+}
+
+/// [`isqrt_u64`] for `n ≥ 2` with `e` = half its leading zeros, rounded
+/// down (so that `n·4^e` is in [2^62, 2^64)).
+#[inline(always)]
+const fn isqrt_newton(n: u64, e: u32) -> u64 {
+    // n·4^e in [2^62, 2^64): its top byte t in [64, 255], and
+    // √n ≤ √((t+1)·2^56) / 2^e ≤ (SQRT_START[t − 64] + 1) / 2^e.
+    let t = (n << (2 * e)) >> 56;
+    let tab = SQRT_START.len() as u64;
+    let i = t.wrapping_sub(64);
+    let s0 = if i < tab {
+        SQRT_START[i as usize] as u64
+    } else {
+        u32::MAX as u64
+    };
+    // ⌊s0 / 2^e⌋ + 1 ≥ (s0 + 1) / 2^e; the floor of the root is below
+    // 2^32, so the start may be capped there, and x·x never overflows.
+    let mut x = (s0 >> e).wrapping_add(1);
+    if x > u32::MAX as u64 {
+        x = u32::MAX as u64;
+    }
+    while x.wrapping_mul(x) > n {
+        // x > √n ≥ 1: the fallback is never taken (no panic path).
         let q = match n.checked_div(x) {
             Some(q) => q,
             None => return 0,
         };
-        let y = x.saturating_add(q) >> 1;
-        if y >= x {
-            return x;
-        }
-        x = y;
+        // x < 2^32 and q < √n < 2^32: the sum fits.
+        x = x.wrapping_add(q) >> 1;
     }
+    x
+}
+
+/// `⌈√((t+1)·2^56)⌉ − 1` for t in [64, 255] (the last is 2^32 − 1): the
+/// start of [`isqrt_u64`] for an `n` normalised to [2^62, 2^64) by an even
+/// shift, whose top byte is t, at most 1/(2t) above its root.
+const SQRT_START: [u32; 192] = {
+    let mut tab = [0u32; 192];
+    let mut i = 0;
+    while i < 192 {
+        let m = ((i as u64) + 65) << 56;
+        tab[i] = if i == 191 {
+            u32::MAX
+        } else {
+            let r = isqrt_bitwise(m);
+            // ⌈√m⌉ − 1: r − 1 when m is a square, else r.
+            if r * r == m {
+                (r - 1) as u32
+            } else {
+                r as u32
+            }
+        };
+        i += 1;
+    }
+    tab
+};
+
+/// `floor(sqrt(n))` digit by digit (compile time only: [`SQRT_START`], and
+/// the reference in the tests).
+const fn isqrt_bitwise(n: u64) -> u64 {
+    let mut rem = n;
+    let mut root = 0u64;
+    let mut bit = 1u64 << 62;
+    while bit > rem {
+        bit >>= 2;
+    }
+    while bit != 0 {
+        if rem >= root + bit {
+            rem -= root + bit;
+            root = (root >> 1) + bit;
+        } else {
+            root >>= 1;
+        }
+        bit >>= 2;
+    }
+    root
 }
 
 /// sin and cos of |x| <= π/4 (slightly more is fine).
@@ -741,6 +814,40 @@ pub(crate) const fn unit30(u: Fx) -> i64 {
     }
 }
 
+/// Whether all four raws are in [−2^47, 2^47), the range of
+/// [`Fx::mul_sat`]'s fast path (for both factors).
+#[inline(always)]
+const fn in_fast_range(a: i64, b: i64, c: i64, d: i64) -> bool {
+    const R: i64 = 1 << 47;
+    ((a.wrapping_add(R) | b.wrapping_add(R) | c.wrapping_add(R) | d.wrapping_add(R)) as u64)
+        < (1 << 48)
+}
+
+/// [`Fx::mul_sat`]'s fast path: the exact floor of a·b/2^32 for a, b in
+/// [−2^47, 2^47) (see there), below 2^62 in magnitude.
+#[inline(always)]
+const fn mul_fast(a: i64, b: i64) -> i64 {
+    let (ah, al) = (a >> 32, a & 0xFFFF_FFFF);
+    let (bh, bl) = (b >> 32, b & 0xFFFF_FFFF);
+    let lo = (((al as u64).wrapping_mul(bl as u64)) >> 32) as i64;
+    (ah.wrapping_mul(bh) << 32)
+        .wrapping_add(ah.wrapping_mul(bl))
+        .wrapping_add(al.wrapping_mul(bh))
+        .wrapping_add(lo)
+}
+
+/// `⌊x²/2^32⌋` for `|x| < 2^47` raw: exactly `Fx(x).mul_sat(Fx(x))` (its
+/// fast path is that exact floor, and x² = |x|²), as an unsigned value
+/// below 2^62 + 2^49: `h² < 2^30` shifted by 32, `2·h·l < 2^48`.
+#[inline(always)]
+const fn sq_small(x: i64) -> u64 {
+    let u = x.unsigned_abs();
+    let (h, l) = (u >> 32, u & 0xFFFF_FFFF);
+    (h.wrapping_mul(h) << 32)
+        .wrapping_add(h.wrapping_mul(l) << 1)
+        .wrapping_add(l.wrapping_mul(l) >> 32)
+}
+
 /// A 3-vector of `Fx`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Vec3 {
@@ -808,7 +915,45 @@ impl Vec3 {
 
     #[inline(never)]
     const fn scale_products(self, k: Fx) -> Vec3 {
+        // All four in mul_sat's fast range (one test for the four): its
+        // fast products, without the saturating path's registers.
+        if in_fast_range(k.0, self.x.0, self.y.0, self.z.0) {
+            return Vec3::new(
+                Fx(mul_fast(self.x.0, k.0)),
+                Fx(mul_fast(self.y.0, k.0)),
+                Fx(mul_fast(self.z.0, k.0)),
+            );
+        }
+        self.scale_products_wide(k)
+    }
+
+    #[cold]
+    #[inline(never)]
+    const fn scale_products_wide(self, k: Fx) -> Vec3 {
         Vec3::new(self.x.mul_sat(k), self.y.mul_sat(k), self.z.mul_sat(k))
+    }
+
+    /// `self.scale(k).add(o.scale(c))` in one pass: the same value (a
+    /// factor 1 gives the same product as `scale`'s shortcut), with one
+    /// range test for the eight factors of the fast products.
+    #[inline(never)]
+    pub const fn scale_add(self, k: Fx, o: Vec3, c: Fx) -> Vec3 {
+        if in_fast_range(k.0, self.x.0, self.y.0, self.z.0)
+            && in_fast_range(c.0, o.x.0, o.y.0, o.z.0)
+        {
+            return Vec3::new(
+                Fx(mul_fast(self.x.0, k.0)).add_sat(Fx(mul_fast(o.x.0, c.0))),
+                Fx(mul_fast(self.y.0, k.0)).add_sat(Fx(mul_fast(o.y.0, c.0))),
+                Fx(mul_fast(self.z.0, k.0)).add_sat(Fx(mul_fast(o.z.0, c.0))),
+            );
+        }
+        self.scale(k).add(o.scale(c))
+    }
+
+    /// Every component doubled: exactly `self.scale(Fx::TWO)` (`mul_sat` by
+    /// 2 is the doubling, saturating at `MAX`/`MIN`), without the products.
+    pub const fn twice(self) -> Vec3 {
+        Vec3::new(self.x.mul_int(2), self.y.mul_int(2), self.z.mul_int(2))
     }
 
     /// Every component halved: exactly `self.scale(Fx::HALF)`.
@@ -817,6 +962,19 @@ impl Vec3 {
     }
 
     pub const fn dot(self, o: Vec3) -> Fx {
+        // All six in mul_sat's fast range (two tests for the six): its
+        // fast products; the sum still saturates (each is below 2^62).
+        if in_fast_range(self.x.0, self.y.0, self.z.0, 0) && in_fast_range(o.x.0, o.y.0, o.z.0, 0) {
+            return Fx(mul_fast(self.x.0, o.x.0))
+                .add_sat(Fx(mul_fast(self.y.0, o.y.0)))
+                .add_sat(Fx(mul_fast(self.z.0, o.z.0)));
+        }
+        self.dot_wide(o)
+    }
+
+    #[cold]
+    #[inline(never)]
+    const fn dot_wide(self, o: Vec3) -> Fx {
         self.x
             .mul_sat(o.x)
             .add_sat(self.y.mul_sat(o.y))
@@ -865,38 +1023,93 @@ impl Vec3 {
         if lz <= 17 {
             // |component| >= 2^14: the squares could saturate (the norm would
             // come out near sqrt(MAX) ~ 46341 whatever the vector). Scale down
-            // below 2^46 raw first, then back up, saturating at MAX.
+            // to at most 2^46 raw first, then back up, saturating at MAX.
             let d = 18 - lz;
             let v = Vec3::new(Fx(self.x.0 >> d), Fx(self.y.0 >> d), Fx(self.z.0 >> d));
-            let n = v.norm_sq().sqrt().0;
+            let n = Fx(v.sum_sq_small() as i64).sqrt().0;
             return if n > (i64::MAX >> d) {
                 Fx::MAX
             } else {
                 Fx(n << d)
             };
         }
-        // Small vectors: shift so that the largest component stays below
-        // 2^30 raw (0.25), by at most 16 bits.
-        let k = lz.saturating_sub(34);
-        let k = if k > 16 { 16 } else { k };
-        if k == 0 {
-            return self.norm_sq().sqrt();
+        let k = Vec3::small_shift(lz);
+        Fx(Fx(self.shifted_sum_sq(k) as i64).sqrt().0 >> k)
+    }
+
+    /// `Some(self.norm())` when `self.norm_sq() > t2`, else `None`: the
+    /// norm only where the squared test passes, and from the same sum of
+    /// squares where that is the root's (components of 2^30 to 2^46 raw:
+    /// the norm takes the root of `norm_sq` unshifted, and it cannot
+    /// saturate).
+    pub const fn norm_where_sq_above(self, t2: Fx) -> Option<Fx> {
+        let ax = self.x.0.unsigned_abs();
+        let ay = self.y.0.unsigned_abs();
+        let az = self.z.0.unsigned_abs();
+        let mut m = ax;
+        if ay > m {
+            m = ay;
         }
-        let v = Vec3::new(Fx(self.x.0 << k), Fx(self.y.0 << k), Fx(self.z.0 << k));
-        Fx(v.norm_sq().sqrt().0 >> k)
+        if az > m {
+            m = az;
+        }
+        if m >= (1 << 30) && m < (1 << 46) {
+            // small_shift(leading zeros) = 0 here.
+            let s = Fx(self.sum_sq_small() as i64);
+            return if s.0 > t2.0 { Some(s.sqrt()) } else { None };
+        }
+        if self.norm_sq().0 > t2.0 {
+            Some(self.norm())
+        } else {
+            None
+        }
+    }
+
+    /// How far [`Vec3::norm`] shifts a vector whose largest component is
+    /// below 2^46 raw (`lz`, its leading zeros, ≥ 18) before squaring: so
+    /// that the largest component stays below 2^30 raw (0.25), by at most
+    /// 16 bits.
+    #[inline(always)]
+    const fn small_shift(lz: u32) -> u32 {
+        let k = lz.saturating_sub(34);
+        if k > 16 {
+            16
+        } else {
+            k
+        }
+    }
+
+    /// The sum of squares [`Vec3::norm`] takes the root of, for a vector
+    /// whose components are below 2^46 raw, shifted up by
+    /// `k = small_shift(..)` (then below 2^30 raw when `k > 0`).
+    #[inline(always)]
+    const fn shifted_sum_sq(self, k: u32) -> u64 {
+        Vec3::new(Fx(self.x.0 << k), Fx(self.y.0 << k), Fx(self.z.0 << k)).sum_sq_small()
+    }
+
+    /// Raw `norm_sq()` for components of at most 2^46 raw: each square is
+    /// `x.mul_sat(x)` (the exact floor of x²/2^32, its fast path, taken on
+    /// |x|) below 2^60, their sum below 2^62, so `add_sat` never saturates
+    /// and plain sums give the same value, without the range checks.
+    #[inline(always)]
+    const fn sum_sq_small(self) -> u64 {
+        sq_small(self.x.0)
+            .wrapping_add(sq_small(self.y.0))
+            .wrapping_add(sq_small(self.z.0))
     }
 
     /// Scale down so that the norm is at most `max`; returns the vector and
     /// whether it was clamped.
     pub const fn clamp_norm(self, max: Fx) -> (Vec3, bool) {
-        // Quick exit, the same result as computing the norm: below 2^46 raw
-        // `norm()` is exact shifts, floor products and a floor root, so it
-        // is at most the true norm, itself at most √3 < 2 times the largest
-        // component and at most the sum of the components' magnitudes.
         let ax = self.x.0.unsigned_abs();
         let ay = self.y.0.unsigned_abs();
         let az = self.z.0.unsigned_abs();
         if max.0 >= 0 && ax < (1 << 46) && ay < (1 << 46) && az < (1 << 46) {
+            // Quick exit, the same result as computing the norm: below 2^46
+            // raw `norm()` is exact shifts, floor products and a floor root,
+            // so it is at most the true norm, itself at most √3 < 2 times the
+            // largest component and at most the sum of the components'
+            // magnitudes.
             let mut m = ax;
             if ay > m {
                 m = ay;
@@ -909,6 +1122,34 @@ impl Vec3 {
             if bound <= max.0 as u64 {
                 return (self, false);
             }
+            // `norm()` of such a vector (m > max ≥ 0 here) is
+            // `√(s) >> k`, with s its shifted sum of squares and `√` the
+            // floor root `Fx::sqrt`, at most √(s·2^32) raw. Before the
+            // root: with M = max·2^k, s ≤ ⌊M²/2^32⌋ gives √ ≤ M and a norm
+            // at most `max`, so no clamp, as the norm would decide; s is
+            // below 2^62, so any M ≥ 2^47 passes too.
+            let k = Vec3::small_shift(m.leading_zeros());
+            let s = self.shifted_sum_sq(k);
+            let mu = max.0 as u64;
+            if mu >= (1u64 << 47) >> k || s <= sq_small((mu << k) as i64) {
+                return (self, false);
+            }
+            let n = Fx(Fx(s as i64).sqrt().0 >> k);
+            if n.0 <= max.0 || n.0 <= 0 {
+                return (self, false);
+            }
+            // 0 ≤ max < n: `max.div_sat(n)` is this quotient (both
+            // positive), below 1 (raw below 2^32), and with components
+            // below 2^46 raw `scale` takes mul_sat's fast products.
+            let c = udiv_q32(max.0 as u64, n.0 as u64) as i64;
+            return (
+                Vec3::new(
+                    Fx(mul_fast(self.x.0, c)),
+                    Fx(mul_fast(self.y.0, c)),
+                    Fx(mul_fast(self.z.0, c)),
+                ),
+                true,
+            );
         }
         let n = self.norm();
         if n.0 <= max.0 || n.0 <= 0 {
@@ -1172,7 +1413,23 @@ impl Quat {
 
     /// Exact normalisation (sqrt + division); identity for a zero quaternion.
     pub const fn normalize(&self) -> Quat {
-        let n = self.norm_sq().sqrt();
+        const R: i64 = 1 << 46;
+        let (x, y, z, w) = (self.x.0, self.y.0, self.z.0, self.w.0);
+        let n = if ((x.wrapping_add(R) | y.wrapping_add(R) | z.wrapping_add(R) | w.wrapping_add(R))
+            as u64)
+            < (1 << 47)
+        {
+            // Components in [−2^46, 2^46) raw: `norm_sq`'s squares are
+            // these exact floors, at most 2^60, and their sum (at most
+            // 2^62) does not saturate.
+            Fx((sq_small(self.x.0)
+                .wrapping_add(sq_small(self.y.0))
+                .wrapping_add(sq_small(self.z.0))
+                .wrapping_add(sq_small(self.w.0))) as i64)
+        } else {
+            self.norm_sq()
+        }
+        .sqrt();
         if n.0 <= 0 {
             return Quat::IDENTITY;
         }
@@ -1212,7 +1469,7 @@ impl Quat {
     #[inline(never)]
     const fn rotate_products(&self, v: Vec3) -> Vec3 {
         let u = self.vec();
-        let t = u.cross(v).scale(Fx::TWO);
+        let t = u.cross(v).twice();
         v.add(t.scale(self.w)).add(u.cross(t))
     }
 
@@ -1330,7 +1587,7 @@ impl Quat {
     /// `2·sin(θ/2)` (≤ 2), the gradient of the potential `4(1 − cos(θ/2))`.
     pub const fn error_vector(&self, b: &Quat) -> Vec3 {
         let e = self.mul(&b.conjugate());
-        let v = e.vec().scale(Fx::TWO);
+        let v = e.vec().twice();
         if e.w.0 < 0 {
             v.neg()
         } else {
@@ -1363,6 +1620,7 @@ impl Pose {
     };
 
     /// `self ∘ p`: the pose `p` (given in self's frame) expressed in the parent frame.
+    #[inline]
     pub const fn compose(&self, p: &Pose) -> Pose {
         Pose {
             position: self.orientation.rotate(p.position).add(self.position),
@@ -1513,7 +1771,179 @@ pub const JOINTS_ZERO: Joints = [Fx::ZERO; 6];
 
 #[cfg(test)]
 mod tests {
-    use super::{frac_q32_bitwise, frac_q32_wide, udiv_q32};
+    use super::{frac_q32_bitwise, frac_q32_wide, isqrt_bitwise, isqrt_u64, udiv_q32, Fx, Vec3};
+
+    /// `Vec3::norm` as it was: the squares through `norm_sq` (`mul_sat`,
+    /// `add_sat`).
+    fn norm_reference(v: Vec3) -> Fx {
+        let m =
+            v.x.0
+                .unsigned_abs()
+                .max(v.y.0.unsigned_abs())
+                .max(v.z.0.unsigned_abs());
+        if m == 0 {
+            return Fx::ZERO;
+        }
+        let lz = m.leading_zeros();
+        if lz <= 17 {
+            let d = 18 - lz;
+            let w = Vec3::new(Fx(v.x.0 >> d), Fx(v.y.0 >> d), Fx(v.z.0 >> d));
+            let n = w.norm_sq().sqrt().0;
+            return if n > (i64::MAX >> d) {
+                Fx::MAX
+            } else {
+                Fx(n << d)
+            };
+        }
+        let k = lz.saturating_sub(34).min(16);
+        let w = Vec3::new(Fx(v.x.0 << k), Fx(v.y.0 << k), Fx(v.z.0 << k));
+        Fx(w.norm_sq().sqrt().0 >> k)
+    }
+
+    /// `Vec3::clamp_norm` as it was: the root first, then the comparison.
+    fn clamp_norm_reference(v: Vec3, max: Fx) -> (Vec3, bool) {
+        let n = norm_reference(v);
+        if n.0 <= max.0 || n.0 <= 0 {
+            return (v, false);
+        }
+        if n.0 == i64::MAX {
+            let w = Vec3::new(Fx(v.x.0 >> 2), Fx(v.y.0 >> 2), Fx(v.z.0 >> 2));
+            let n = norm_reference(w);
+            let u = Vec3::new(w.x.div_sat(n), w.y.div_sat(n), w.z.div_sat(n));
+            return (u.scale(max.abs()), true);
+        }
+        (v.scale(max.abs().div_sat(n)), true)
+    }
+
+    #[test]
+    fn norm_and_clamp_are_the_root_first_ones() {
+        let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        // Components of every width and sign; limits near the norm (the
+        // test before the root decides at its edge) and anywhere.
+        for i in 0..1_000_000u32 {
+            let mut c = [0i64; 3];
+            for v in &mut c {
+                let r = next();
+                *v = (r >> (r % 64)) as i64;
+                if r & (1 << 7) != 0 {
+                    *v = v.wrapping_neg();
+                }
+            }
+            let v = Vec3::new(Fx(c[0]), Fx(c[1]), Fx(c[2]));
+            let n = norm_reference(v);
+            assert_eq!(v.norm(), n, "{v:?}");
+            let r = next();
+            let max = match i % 4 {
+                0 => Fx(n.0.wrapping_add((r % 9) as i64 - 4)),
+                1 => Fx(n.0 >> 1).add_sat(Fx((r % 7) as i64 - 3)),
+                2 => Fx((r >> (r % 64)) as i64),
+                _ => Fx(n.0.wrapping_mul(3) / 2).neg_sat(),
+            };
+            assert_eq!(
+                v.clamp_norm(max),
+                clamp_norm_reference(v, max),
+                "{v:?} {max:?}"
+            );
+        }
+        // Limits at and around the square's edge for small forces.
+        for raw in [1i64, 3, 1 << 20, 1 << 31, 20 << 32, (20 << 32) + 1, 1 << 46] {
+            let v = Vec3::new(Fx(raw), Fx(-raw), Fx(raw / 3));
+            let n = norm_reference(v);
+            for d in -8..=8 {
+                let max = Fx(n.0 + d);
+                assert_eq!(
+                    v.clamp_norm(max),
+                    clamp_norm_reference(v, max),
+                    "{v:?} {max:?}"
+                );
+            }
+        }
+    }
+
+    /// `udiv_q32` without its one-division path for small numerators.
+    fn udiv_q32_two_step(a: u64, b: u64) -> u64 {
+        let (q, r) = (a / b, a % b);
+        if q >= (1u64 << 31) {
+            return u64::MAX;
+        }
+        let frac = if r < (1u64 << 32) {
+            (r << 32) / b
+        } else {
+            frac_q32_wide(r, b)
+        };
+        (q << 32) | frac
+    }
+
+    #[test]
+    fn small_numerator_division_is_the_two_step_one() {
+        let mut x: u64 = 0x6A09_E667_F3BC_C909;
+        let mut cases = vec![
+            (0u64, 1u64),
+            (1, 1),
+            ((1 << 31) - 1, 1),
+            (1 << 31, 1),
+            ((1 << 32) - 1, 1),
+            ((1 << 32) - 1, 2),
+            (1 << 32, 2),
+            ((1 << 32) - 1, u64::MAX),
+            (12345, 429_497),
+        ];
+        for _ in 0..1_000_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let a = (x >> 32) >> (x % 32);
+            let b = (x.rotate_left(17) >> (x % 63)).max(1);
+            cases.push((a, b));
+        }
+        for (a, b) in cases {
+            assert_eq!(udiv_q32(a, b), udiv_q32_two_step(a, b), "a {a:#x} b {b:#x}");
+        }
+    }
+
+    #[test]
+    fn newton_root_is_the_digit_by_digit_root() {
+        let mut cases = vec![0u64, 1, 2, 3, 4, u64::MAX, u64::MAX - 1, 1 << 62, 1 << 63];
+        // Around every square r² (r < 2^32 at every bit length and at the
+        // table's bucket edges) and every power of two.
+        let mut roots: Vec<u64> = (0..32).flat_map(|b| [1u64 << b, (1u64 << b) + 1]).collect();
+        roots.extend((1..32).map(|b| (1u64 << b) - 1));
+        roots.push(u64::from(u32::MAX));
+        roots.extend((64u64..256).map(|t| isqrt_bitwise((t << 56) - 1) + 1));
+        for r in roots {
+            let sq = r.wrapping_mul(r);
+            cases.extend([sq.wrapping_sub(1), sq, sq.wrapping_add(1)]);
+        }
+        for b in 0..64 {
+            cases.extend([1u64 << b, (1u64 << b).wrapping_sub(1), (1u64 << b) + 1]);
+        }
+        for t in 64u64..256 {
+            for e in 0..32 {
+                let n = (t << 56) >> (2 * e);
+                cases.extend([
+                    n,
+                    n.wrapping_sub(1),
+                    ((t + 1) << 56).wrapping_sub(1) >> (2 * e),
+                ]);
+            }
+        }
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for _ in 0..2_000_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            cases.push(x >> (x % 64));
+        }
+        for n in cases {
+            assert_eq!(isqrt_u64(n), isqrt_bitwise(n), "n {n:#x}");
+        }
+    }
 
     #[test]
     fn wide_fraction_is_the_restoring_division() {
