@@ -352,6 +352,9 @@ pub struct Controller {
     impulse_torque: Fx,
     /// Cartesian brake gain for the period, N·s/m.
     brake_lin: Fx,
+    /// The Cartesian brake's force on the handle last cycle, N: the brake
+    /// engages no faster than the force ramp from it.
+    brake_applied: Fx,
     /// `elbow_stop_gain` for the period, N·m/rad.
     elbow_k: Fx,
     /// Whether the elbow soft stop pushed in the last cycle (the observer
@@ -420,6 +423,12 @@ pub struct ControlOutput {
     /// scaling: the force the target port sees right after the client's
     /// step, before the envelope moves (what the observer integrates).
     pub spring_wrench: Wrench,
+    /// The Cartesian brake's force on the handle this cycle (scaled to the
+    /// motors' room the coupling left; zero below `V_BRAKE_ONSET`), base
+    /// frame, N: with `handle_wrench.force`, the Cartesian force the motors
+    /// give the handle beyond gravity compensation (the joint brakes and the
+    /// elbow's soft stop aside).
+    pub brake_force: Vec3,
 }
 
 impl Controller {
@@ -451,6 +460,7 @@ impl Controller {
             impulse_force: Fx::ZERO,
             impulse_torque: Fx::ZERO,
             brake_lin: Fx::ZERO,
+            brake_applied: Fx::ZERO,
             elbow_k: Fx::ZERO,
             elbow_pushed: false,
             elbow_gate: Fx::ZERO,
@@ -487,6 +497,7 @@ impl Controller {
         self.impulse_force = FORCE_IMPULSE_N_PER_MS.mul_sat(ms);
         self.impulse_torque = TORQUE_IMPULSE_NM_PER_MS.mul_sat(ms);
         self.brake_lin = cartesian_brake_gain(period);
+        self.brake_applied = Fx::ZERO;
         self.elbow_k = elbow_stop_gain(period);
         self.anchor_step = V_ANCHOR_MAX.mul_sat(period);
         self.takeback_every = if period >= TAKEBACK_EVERY_CYCLE_FROM {
@@ -592,6 +603,7 @@ impl Default for ControlOutput {
             force_scale: Fx::ONE,
             speed_scale: Fx::ONE,
             spring_wrench: Wrench::ZERO,
+            brake_force: Vec3::ZERO,
         }
     }
 }
@@ -1292,10 +1304,18 @@ pub fn cartesian_control(
     // spring that already resists the motion with all the motors have keeps
     // it (its force limit does not fall because a brake took its share),
     // and the brake adds what is left along the motion.
+    let mut brake_force = Vec3::ZERO;
     if fast && v_lin > V_BRAKE_ONSET {
         alarms |= alarm::VELOCITY_LIMIT;
         // −B_c (|v| − v_on) v̂, as one vector scaled to the motors' room.
-        let mag = ctrl.brake_lin.mul_sat(v_lin.sub_sat(V_BRAKE_ONSET));
+        // Its engagement is a controller event: it rises from what it gave
+        // last cycle by at most the force ramp (`MAX_FORCE·T/RAMP_US`,
+        // 0.4 N/ms), and falls with the speed. Never above B_c (|v| − v_on),
+        // so it is a damper of gain in [0, B_c].
+        let mag = ctrl.brake_lin.mul_sat(v_lin.sub_sat(V_BRAKE_ONSET)).min(
+            ctrl.brake_applied
+                .add_sat(MAX_FORCE.mul_sat(ctrl.ramp_step)),
+        );
         let f_b = v_h.scale(mag.div_sat(v_lin)).neg();
         let brake_tau = kin.jacobian_transpose_mul_force(f_b);
         let mut sb = Fx::ONE;
@@ -1310,6 +1330,10 @@ pub fn cartesian_control(
         for (t, bt) in fixed.iter_mut().zip(brake_tau.iter()) {
             *t = t.add_sat(bt.mul_sat(sb));
         }
+        brake_force = f_b.scale(sb);
+        ctrl.brake_applied = mag.mul_sat(sb);
+    } else {
+        ctrl.brake_applied = Fx::ZERO;
     }
     let s = s_f.min(s_t).mul_sat(speed_s.min(push_s));
     let mut joint_torques = JOINTS_ZERO;
@@ -1452,5 +1476,6 @@ pub fn cartesian_control(
         force_scale: s_f,
         speed_scale: speed_s.min(push_s),
         spring_wrench,
+        brake_force,
     }
 }

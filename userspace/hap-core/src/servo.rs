@@ -169,6 +169,7 @@ impl<A: ArmIo> Servo<A> {
                 force_scale: Fx::ONE,
                 speed_scale: Fx::ONE,
                 spring_wrench: super::fixed::Wrench::ZERO,
+                brake_force: super::fixed::Vec3::ZERO,
             },
         }
     }
