@@ -1006,16 +1006,7 @@ impl Vec3 {
     /// a component of 2^14 or more are scaled down first, so that the norm
     /// never comes from a saturated square (it saturates at `MAX` itself).
     pub const fn norm(self) -> Fx {
-        let ax = self.x.0.unsigned_abs();
-        let ay = self.y.0.unsigned_abs();
-        let az = self.z.0.unsigned_abs();
-        let mut m = ax;
-        if ay > m {
-            m = ay;
-        }
-        if az > m {
-            m = az;
-        }
+        let m = self.max_abs_raw();
         if m == 0 {
             return Fx::ZERO;
         }
@@ -1043,16 +1034,7 @@ impl Vec3 {
     /// the norm takes the root of `norm_sq` unshifted, and it cannot
     /// saturate).
     pub const fn norm_where_sq_above(self, t2: Fx) -> Option<Fx> {
-        let ax = self.x.0.unsigned_abs();
-        let ay = self.y.0.unsigned_abs();
-        let az = self.z.0.unsigned_abs();
-        let mut m = ax;
-        if ay > m {
-            m = ay;
-        }
-        if az > m {
-            m = az;
-        }
+        let m = self.max_abs_raw();
         if m >= (1 << 30) && m < (1 << 46) {
             // small_shift(leading zeros) = 0 here.
             let s = Fx(self.sum_sq_small() as i64);
@@ -1092,6 +1074,21 @@ impl Vec3 {
     /// |x|) below 2^60, their sum below 2^62, so `add_sat` never saturates
     /// and plain sums give the same value, without the range checks.
     #[inline(always)]
+    /// The largest component's magnitude, raw.
+    const fn max_abs_raw(self) -> u64 {
+        let ax = self.x.0.unsigned_abs();
+        let ay = self.y.0.unsigned_abs();
+        let az = self.z.0.unsigned_abs();
+        let mut m = ax;
+        if ay > m {
+            m = ay;
+        }
+        if az > m {
+            m = az;
+        }
+        m
+    }
+
     const fn sum_sq_small(self) -> u64 {
         sq_small(self.x.0)
             .wrapping_add(sq_small(self.y.0))
