@@ -133,16 +133,15 @@ echo "# FIGURE proxy to_server gaps between datagrams sent (real time): $gaps"
 # rightly starts its fade once the gap passes LINK_FADE_START_US (50 ms) of
 # guest time. The guest's rate over the run is its cycles over the client's
 # real run time; a gap counts as a host stall when, at that rate, it exceeds
-# the fade's start. Only gaps once the VPr stream has started count (the
-# datagrams of the stream's length, the most common one): the set-up's
-# gaps come before any VPr, where the module couples nothing.
+# the fade's start. Only gaps between two datagrams of the VPr stream
+# count (the stream's length, the most common one): the set-up's and the
+# close's gaps come before and after it, where the module couples nothing.
 guest_rate=$(awk -v c="$(gv hap_stats.txt cycles)" -v p="$period_us" -v d="$(sv duration_s)" \
   'BEGIN { if (d > 0 && c > 0) printf "%.4f", c * p / 1e6 / d; else print 1 }')
 stalls=$(awk -F, '$1 == "to_server" && ($5 == "sent" || $5 == "sent_copy") { print $7, $3 }' "$results/netem-trace.csv" | sort -n |
   awk -v r="$guest_rate" '{ t[NR] = $1; l[NR] = $2; c[$2]++ }
     END { for (k in c) if (c[k] > c[m] || m == "") m = k
-          for (i = 1; i <= NR; i++) if (l[i] == m) { s = i; break }
-          for (i = s + 1; i <= NR; i++) if ((t[i] - t[i - 1]) / 1e6 * r > 50) n++
+          for (i = 2; i <= NR; i++) if (l[i] == m && l[i - 1] == m && (t[i] - t[i - 1]) / 1e6 * r > 50) n++
           print n + 0 }')
 echo "# FIGURE guest clock at $guest_rate of real time; host stalls of the link longer than the fade's start in guest time: $stalls"
 echo "# FIGURE module: cycles $(gv hap_stats.txt cycles), misses $(gv hap_stats.txt misses), VPr extrapolated $(gv hap_stats.txt vpr_extrapolated), frames in $(gv hap_stats.txt frames_in), out $(gv hap_stats.txt frames_out); position log: $(av link_cycles) cycles powered in session with a VPr, at full link gain $(av link_full_gain_fraction), $(av link_fades) fades, lowest gain $(av link_gain_min), oldest VPr $(av vpr_age_max_ms) ms (fade events counted unpowered too: $(av link_fading_events))"
