@@ -1331,7 +1331,14 @@ pub fn cartesian_control(
             *t = t.add_sat(bt.mul_sat(sb));
         }
         brake_force = f_b.scale(sb);
-        ctrl.brake_applied = mag.mul_sat(sb);
+        // What the motors gave: nothing while they are not enabled (the
+        // line applies no torque), so a brake that meets a fast handle at
+        // power-on engages at the ramp from 0.
+        ctrl.brake_applied = if ls.motors_enabled {
+            mag.mul_sat(sb)
+        } else {
+            Fx::ZERO
+        };
     } else {
         ctrl.brake_applied = Fx::ZERO;
     }

@@ -7,8 +7,9 @@
 //! largest force step in one 1 ms cycle (the coupling's and the Cartesian
 //! brake's force) for client-driven changes and after
 //! a power-on next to the object (and in one 100 µs cycle, where the power-on
-//! throws the handle past the speed scale's onset), and a fast push (Cartesian brake engaged)
-//! that keeps the spring's force limit.
+//! throws the handle past the speed scale's onset), a fast push (Cartesian brake engaged)
+//! that keeps the spring's force limit, and a brake that meets a fast handle
+//! at power-on engaging at the force ramp.
 //! Through `ServoCycle::run` with a `MotorLine`, host, deterministic.
 
 use hap_core::arm;
@@ -326,7 +327,8 @@ fn power_on_worst_step(us: u32) -> f64 {
     let mut rig = Rig::new(us, &arm::WORK_Q);
     rig.vpr.pose.position = rig.wall.position.add(Vec3::from_f64([0.0, 0.0, 0.03]));
     rig.run_for(0.2, [0.0; 3]);
-    let mut prev = rig.c.servo.control_output().handle_wrench.force.to_f64();
+    let o = rig.c.servo.control_output();
+    let mut prev = o.handle_wrench.force.add(o.brake_force).to_f64();
     let mut worst: f64 = 0.0;
     let on_at = rig.cycles(0.1);
     for k in 0..rig.cycles(0.4) {
@@ -346,7 +348,8 @@ fn power_on_worst_step(us: u32) -> f64 {
             Some(&rig.vpr),
             Mode::Main,
         );
-        let f = rig.c.servo.control_output().handle_wrench.force.to_f64();
+        let o = rig.c.servo.control_output();
+        let f = o.handle_wrench.force.add(o.brake_force).to_f64();
         if k > 0 {
             worst = worst.max(
                 ((f[0] - prev[0]).powi(2) + (f[1] - prev[1]).powi(2) + (f[2] - prev[2]).powi(2))
@@ -380,4 +383,58 @@ fn power_on_at_100_us_throws_the_handle_past_1_m_s_without_a_force_step() {
     let worst = power_on_worst_step(100);
     assert!(worst > 0.01, "the coupling engaged: {worst}");
     assert!(worst <= 1.0, "{worst} N in one 100 µs cycle");
+}
+
+#[test]
+fn a_brake_that_meets_a_fast_handle_at_power_on_engages_at_the_ramp() {
+    // The motors off, a 25 N sideways throw; power on while the handle is
+    // past the brake's onset: the brake's force rises from what the motors
+    // gave the cycle before (nothing while off) by at most the force ramp.
+    let us = 1000;
+    let ramp = 20.0 * f64::from(us) / 50_000.0;
+    let mut rig = Rig::new(us, &arm::WORK_Q);
+    let on_at = rig.cycles(0.08);
+    let (mut prev, mut gave_before) = (0.0f64, false);
+    let (mut fastest_at_on, mut braked): (f64, f64) = (0.0, 0.0);
+    for k in 0..rig.cycles(0.2) {
+        let power = if k == 0 {
+            PowerRequest::Off
+        } else if k == on_at {
+            PowerRequest::On
+        } else {
+            PowerRequest::None
+        };
+        rig.vpr.seq = rig.vpr.seq.wrapping_add(1);
+        rig.vpr.received_cycle = rig.c.servo.cycle();
+        let r = rig.c.run(
+            &rig.line,
+            &hand([0.0, 25.0, 0.0], power),
+            &rig.cfg,
+            Some(&rig.vpr),
+            Mode::Main,
+        );
+        let gives = rig.line.applied().iter().any(|t| t.0 != 0);
+        let b = rig.c.servo.control_output().brake_force.to_f64();
+        let b = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
+        if gives {
+            let from = if gave_before { prev } else { 0.0 };
+            assert!(
+                b <= from + ramp + 1e-6,
+                "cycle {k}: brake {b} N after {from} N"
+            );
+            braked = braked.max(b);
+        }
+        if k == on_at {
+            let v = r.vp.handle_twist.linear.to_f64();
+            fastest_at_on = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        }
+        prev = if gives { b } else { 0.0 };
+        gave_before = gives;
+    }
+    println!("handle at power-on {fastest_at_on:.2} m/s; brake up to {braked:.2} N");
+    assert!(
+        fastest_at_on > 1.2,
+        "the throw passed the onset: {fastest_at_on}"
+    );
+    assert!(braked > 2.0 * ramp, "the brake engaged: {braked}");
 }
