@@ -15,7 +15,7 @@
 use hap_core::arm;
 use hap_core::config::{CommandType, ServoConfig};
 use hap_core::control;
-use hap_core::cycle::ServoCycle;
+use hap_core::cycle::{CycleResult, ServoCycle};
 use hap_core::effort::EffortSample;
 use hap_core::fixed::{Fx, Joints, Pose, Vec3, Wrench, JOINTS_ZERO};
 use hap_core::io::MotorLine;
@@ -104,6 +104,27 @@ impl Rig {
         let pen = (0..3).map(|i| (p[i] - w[i]) * u[i]).sum();
         let o = self.c.servo.control_output();
         (pen, o.handle_wrench.force.add(o.brake_force).to_f64())
+    }
+
+    /// Cycle `k` of a power script: the motors switched off at cycle 0 and
+    /// on at `on_at`, the hand pushing `force`, the object's frame fresh.
+    fn power_cycle(&mut self, k: usize, on_at: usize, force: [f64; 3]) -> CycleResult {
+        let power = if k == 0 {
+            PowerRequest::Off
+        } else if k == on_at {
+            PowerRequest::On
+        } else {
+            PowerRequest::None
+        };
+        self.vpr.seq = self.vpr.seq.wrapping_add(1);
+        self.vpr.received_cycle = self.c.servo.cycle();
+        self.c.run(
+            &self.line,
+            &hand(force, power),
+            &self.cfg,
+            Some(&self.vpr),
+            Mode::Main,
+        )
     }
 
     fn run_for(&mut self, s: f64, force: [f64; 3]) -> f64 {
@@ -332,22 +353,7 @@ fn power_on_worst_step(us: u32) -> f64 {
     let mut worst: f64 = 0.0;
     let on_at = rig.cycles(0.1);
     for k in 0..rig.cycles(0.4) {
-        let power = if k == 0 {
-            PowerRequest::Off
-        } else if k == on_at {
-            PowerRequest::On
-        } else {
-            PowerRequest::None
-        };
-        rig.vpr.seq = rig.vpr.seq.wrapping_add(1);
-        rig.vpr.received_cycle = rig.c.servo.cycle();
-        rig.c.run(
-            &rig.line,
-            &hand([0.0; 3], power),
-            &rig.cfg,
-            Some(&rig.vpr),
-            Mode::Main,
-        );
+        rig.power_cycle(k, on_at, [0.0; 3]);
         let o = rig.c.servo.control_output();
         let f = o.handle_wrench.force.add(o.brake_force).to_f64();
         if k > 0 {
@@ -397,22 +403,7 @@ fn a_brake_that_meets_a_fast_handle_at_power_on_engages_at_the_ramp() {
     let (mut prev, mut gave_before) = (0.0f64, false);
     let (mut fastest_at_on, mut braked): (f64, f64) = (0.0, 0.0);
     for k in 0..rig.cycles(0.2) {
-        let power = if k == 0 {
-            PowerRequest::Off
-        } else if k == on_at {
-            PowerRequest::On
-        } else {
-            PowerRequest::None
-        };
-        rig.vpr.seq = rig.vpr.seq.wrapping_add(1);
-        rig.vpr.received_cycle = rig.c.servo.cycle();
-        let r = rig.c.run(
-            &rig.line,
-            &hand([0.0, 25.0, 0.0], power),
-            &rig.cfg,
-            Some(&rig.vpr),
-            Mode::Main,
-        );
+        let r = rig.power_cycle(k, on_at, [0.0, 25.0, 0.0]);
         let gives = rig.line.applied().iter().any(|t| t.0 != 0);
         let b = rig.c.servo.control_output().brake_force.to_f64();
         let b = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
