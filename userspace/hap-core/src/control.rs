@@ -352,7 +352,8 @@ pub struct Controller {
     impulse_torque: Fx,
     /// Cartesian brake gain for the period, N·s/m.
     brake_lin: Fx,
-    /// The Cartesian brake's force on the handle last cycle, N: the brake
+    /// The magnitude of the Cartesian brake's force the motors gave the
+    /// handle last cycle, N (0 while they were not enabled): the brake
     /// engages no faster than the force ramp from it.
     brake_applied: Fx,
     /// `elbow_stop_gain` for the period, N·m/rad.
@@ -423,11 +424,12 @@ pub struct ControlOutput {
     /// scaling: the force the target port sees right after the client's
     /// step, before the envelope moves (what the observer integrates).
     pub spring_wrench: Wrench,
-    /// The Cartesian brake's force on the handle this cycle (scaled to the
-    /// motors' room the coupling left; zero below `V_BRAKE_ONSET`), base
-    /// frame, N: with `handle_wrench.force`, the Cartesian force the motors
-    /// give the handle beyond gravity compensation (the joint brakes and the
-    /// elbow's soft stop aside).
+    /// The Cartesian brake's force on the handle commanded this cycle
+    /// (scaled to the motors' room the coupling left; zero below
+    /// `V_BRAKE_ONSET`), base frame, N: with `handle_wrench.force`, the
+    /// Cartesian force the motors give the handle beyond gravity
+    /// compensation while they are enabled (the joint brakes and the elbow's
+    /// soft stop aside; the line applies nothing while they are not).
     pub brake_force: Vec3,
 }
 
