@@ -31,7 +31,8 @@ if [ ${#debs[@]} = 2 ] && [ -f "${debs[0]}" ] && [ -f "${debs[1]}" ]; then ok "b
 ver=$(dpkg-deb -f "${debs[0]}" Version)
 check "the dkms package holds dkms.conf with the rust/ pre-build step" sh -c "dpkg-deb --fsys-tarfile '${debs[0]}' | tar -xO ./usr/src/hapticctrl-$ver/dkms.conf | grep -q '^PRE_BUILD=\"scripts/rust-headers.sh'"
 check "the tools package holds proto_interface, hapctl, hapdev, virtuose_demo, hapticctrl.sh, libvirtuose_api" sh -c "dpkg-deb -c '${debs[1]}' | grep -c -E '/usr/bin/(proto_interface|hapctl|hapdev|virtuose_demo)$|/usr/sbin/hapticctrl.sh$|libvirtuose_api.so$|virtuose_api.h$' | grep -qx 7"
-check "the tools package holds VirtuoseAPI.h, virtuoseAPI.h and Haption's library names, virtuose.pc, the CMake package" sh -c "dpkg-deb -c '${debs[1]}' | grep -c -E '/usr/include/(VirtuoseAPI|virtuoseAPI).h$|x86_64-linux-gnu/(libvirtuose.so|libvirtuose.so.4|libVirtuoseAPI.so|libVirtuoseAPI.so.4|libvirtuoseDLL.so|libvirtuoseDLL.so.4|virtuoseAPI.so|libvirtuose.a|pkgconfig/virtuose.pc|cmake/VirtuoseAPI/VirtuoseAPIConfig.cmake)( ->|$)' | grep -qx 12"
+check "the tools package holds VirtuoseAPI.h, virtuoseAPI.h and Haption's library names, virtuose.pc, the CMake package" sh -c "dpkg-deb -c '${debs[1]}' | grep -c -E '/usr/include/(VirtuoseAPI|virtuoseAPI).h$|/usr/lib/x86_64-linux-gnu/(libvirtuose.so|libvirtuose.so.4|libVirtuoseAPI.so|libVirtuoseAPI.so.4|libvirtuoseDLL.so|libvirtuoseDLL.so.4|virtuoseAPI.so|libvirtuose.a|pkgconfig/virtuose.pc|cmake/VirtuoseAPI/VirtuoseAPIConfig.cmake)( ->|$)' | grep -qx 12"
+check "the tools package holds <virtuose/virtuoseAPI.h> and CHAI3D's layout (lib/lin-x86_64/virtuoseAPI.so)" sh -c "dpkg-deb -c '${debs[1]}' | grep -c -E '/usr/include/virtuose/(VirtuoseAPI|virtuoseAPI).h$|/usr/lib/lin-x86_64/virtuoseAPI.so -> ' | grep -qx 3"
 
 # Install both in the chroot (the test removes them again at the end).
 mkdir -p "$C/tmp/hap-debs"; cp "${debs[@]}" "$C/tmp/hap-debs/"

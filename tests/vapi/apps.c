@@ -9,11 +9,20 @@
  * handle's first and second buttons. For MS ms of callback loop
  * (IMPEDANCE), then of a quasi-static object (VIRTMECH), every cycle reads
  * buttons 1 and 2 (and 0, and one the handle does not have), the shift
- * state and the poses; getters are read right after their setters. Prints
- * "ok - ..." / "not ok - ..." per check and "apps: N passed, N failed".
- * Exit status 0 when every check passed. Valid C99 and C++.
+ * state and the poses; getters are read right after their setters. After
+ * virtClose, calls on the closed context and on two values virtOpen never
+ * returned each fail with VIRT_E_INVALID_CONTEXT, within a second (they do
+ * no I/O: a slower one is a hang, not noise; the slowest is printed).
+ * Prints "ok - ..." / "not ok - ..." per check and "apps: N passed, N
+ * failed".
+ * Exit status 0 when every check passed. Valid C99 and C++. With
+ * VIRTUOSE_SUBDIR defined it includes <virtuose/virtuoseAPI.h>.
  */
+#ifdef VIRTUOSE_SUBDIR
+#include <virtuose/virtuoseAPI.h>
+#else
 #include "virtuoseAPI.h"
+#endif
 
 #include <math.h>
 #include <stdio.h>
@@ -82,6 +91,65 @@ static void callback(VirtContext vc, void *arg)
         if (virtSetForce(vc, f))
             s->call_failures++;
     }
+}
+
+static double now_s(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + (double)t.tv_nsec * 1e-9;
+}
+
+/* Calls on a context that is not open: each must return -1 with
+ * VIRT_E_INVALID_CONTEXT, within a second. */
+static void refused(VirtContext c, const char *what, struct loop_state *s)
+{
+    char line[256];
+    float pose[7] = { 0, 0, 0, 0, 0, 0, 1 }, wrench[6] = { 0 }, ks[6] = { 0 }, dt = 0.001f;
+    int v = 0, n = 0, wrong = 0;
+    unsigned int bits = 0;
+    double worst = 0.0;
+#define REFUSED(call)                                                                   \
+    do {                                                                                \
+        double t0_ = now_s();                                                           \
+        int r_ = (call);                                                                \
+        double dt_ = now_s() - t0_;                                                     \
+        int code_ = virtGetErrorCode(NULL);                                             \
+        n++;                                                                            \
+        if (dt_ > worst)                                                                \
+            worst = dt_;                                                                \
+        if (r_ != -1 || code_ != VIRT_E_INVALID_CONTEXT) {                              \
+            wrong++;                                                                    \
+            printf("# %s: %s returned %d, code %d\n", what, #call, r_, code_);         \
+        }                                                                               \
+    } while (0)
+    REFUSED(virtGetPosition(c, pose));
+    REFUSED(virtSetPosition(c, pose));
+    REFUSED(virtGetAvatarPosition(c, pose));
+    REFUSED(virtSetForce(c, wrench));
+    REFUSED(virtGetButton(c, 1, &v));
+    REFUSED(virtIsInShiftPosition(c, &v));
+    REFUSED(virtForceShiftButton(c, 1));
+    REFUSED(virtWaitPressButton(c, 1));
+    REFUSED(virtSetPowerOn(c, 1));
+    REFUSED(virtGetPowerOn(c, &v));
+    REFUSED(virtGetAlarm(c, &bits));
+    REFUSED(virtSetCommandType(c, COMMAND_TYPE_IMPEDANCE));
+    REFUSED(virtSetIndexingMode(c, INDEXING_ALL));
+    REFUSED(virtSetTimeStep(c, dt));
+    REFUSED(virtAttachQSVO(c, ks, ks));
+    REFUSED(virtDetachVO(c));
+    REFUSED(virtSetPeriodicFunction(c, callback, &dt, s));
+    REFUSED(virtStartLoop(c));
+    REFUSED(virtStopLoop(c));
+    REFUSED(virtClose(c));
+#undef REFUSED
+    snprintf(line, sizeof line, "%s: %d calls each return -1 with VIRT_E_INVALID_CONTEXT (%d not)", what, n, wrong);
+    check(wrong == 0, line);
+    snprintf(line, sizeof line, "%s: virtGetErrorCode reads VIRT_E_INVALID_CONTEXT", what);
+    check(virtGetErrorCode(c) == VIRT_E_INVALID_CONTEXT, line);
+    snprintf(line, sizeof line, "%s: every call returned within a second (slowest %.6f s)", what, worst);
+    check(worst < 1.0, line);
 }
 
 static int same7(const float *a, const float *b)
@@ -211,6 +279,11 @@ int main(int argc, char **argv)
     v = -1;
     check(virtGetPowerOn(vc, &v) == 0 && v == 0, "virtGetPowerOn reads 0 right after virtSetPowerOn(0)");
     check(virtClose(vc) == 0, "virtClose");
+
+    /* The closed context, an address and a number virtOpen never returned. */
+    refused(vc, "the closed context", &s);
+    refused((VirtContext)&s, "a never-opened context (an address)", &s);
+    refused((VirtContext)(size_t)12345, "a never-opened context (12345)", &s);
     printf("apps: %d passed, %d failed\n", passed, failed);
     return failed != 0;
 }

@@ -5,11 +5,23 @@
 # tests/vapi/apps.c with #include "virtuoseAPI.h" and each way Haption's
 # applications link the library (-lvirtuose, -lVirtuoseAPI, -lvirtuoseDLL,
 # -l:virtuoseAPI.so, pkg-config virtuose, the static archive, CMake's
-# find_package(VirtuoseAPI) shared and static, and as C++), checks what each
+# find_package(VirtuoseAPI) shared and static, and as C++), with
+# <virtuose/virtuoseAPI.h>, with CHAI3D 3.2's VIRTUOSE_DIR flags, and with a
+# header of the form of Haption's 3.x releases shipped next to the
+# application's sources (tests/vapi/haption3/: every virt* a wrapper that
+# calls virtCallDLL; C, C++, and 3.80's int result), checks what each
 # binary needs at run time, and runs each against the fake controller
 # (virtuose_api's fake_controller, answers lagging a power request by 200
 # cycles; the handle's buttons pressed as given, so buttons 1 and 2 are
-# seen pressed and released).
+# seen pressed and released); each program then checks that calls on its
+# closed context and on never-opened ones fail with VIRT_E_INVALID_CONTEXT
+# within a second.
+# Then the default install (tests/vapi/default-install.sh): the script with
+# no argument, ldconfig, and `cc first.c -lvirtuose` started with no
+# LD_LIBRARY_PATH, in a private mount namespace (unshare -m) where
+# /usr/local and /etc are overlays, so nothing outside changes; when no
+# namespace can be made and this is root, on the host's /usr/local (kept;
+# a second run replaces the same files).
 #   tests/vapi/run.sh [--results DIR] [--ms N]
 # --ms: the length of each of the program's two callback-loop phases
 # (default 300). Installs Debian's pkg-config and cmake when missing (root).
@@ -65,18 +77,27 @@ else
 fi
 inc="$stage/usr/include"
 lib="$stage/usr/$libdir"
-for f in include/VirtuoseAPI.h include/virtuoseAPI.h "$libdir/libvirtuose.so" "$libdir/libVirtuoseAPI.so" \
+arch=$(cc -dumpmachine | cut -d- -f1)
+for f in include/VirtuoseAPI.h include/virtuoseAPI.h include/virtuose/virtuoseAPI.h include/virtuose/VirtuoseAPI.h \
+         "$libdir/libvirtuose.so" "$libdir/libVirtuoseAPI.so" \
          "$libdir/libvirtuoseDLL.so" "$libdir/virtuoseAPI.so" "$libdir/libvirtuose.a" "$libdir/pkgconfig/virtuose.pc" \
-         "$libdir/cmake/VirtuoseAPI/VirtuoseAPIConfig.cmake"; do
+         "$libdir/cmake/VirtuoseAPI/VirtuoseAPIConfig.cmake" "lib/lin-$arch/virtuoseAPI.so"; do
   [ -e "$stage/usr/$f" ] && ok "installed /usr/$f" || nok "not installed: /usr/$f"
 done
 soname() { readelf -d "$1" 2>/dev/null | sed -n 's/.*(SONAME).*\[\(.*\)\]/\1/p'; }
-for f in libvirtuose.so.4 libVirtuoseAPI.so.4 libvirtuoseDLL.so.4 virtuoseAPI.so; do
+for f in libvirtuose.so.4 libVirtuoseAPI.so.4 libvirtuoseDLL.so.4; do
   [ "$(soname "$lib/$f")" = "$f" ] && ok "$f has soname $f" || nok "$f: soname '$(soname "$lib/$f")'"
+done
+# virtuoseAPI.so and CHAI3D's lib/lin-ARCH/virtuoseAPI.so: links to
+# libvirtuose.so.4 (a name the loader's cache holds).
+for f in "$lib/virtuoseAPI.so" "$stage/usr/lib/lin-$arch/virtuoseAPI.so"; do
+  [ -L "$f" ] && [ "$(readlink -f "$f")" = "$(readlink -f "$lib/libvirtuose.so.4")" ] \
+    && ok "${f#"$stage"} links to libvirtuose.so.4" || nok "${f#"$stage"}: $(ls -l "$f" 2>&1)"
 done
 n=$(nm -D --defined-only "$lib/libvirtuose.so.4" | awk '$2 == "T" && $3 ~ /^virt/' | wc -l)
 other=$(nm -D --defined-only "$lib/libvirtuose.so.4" | awk '$2 == "T" && $3 !~ /^virt/' | wc -l)
-[ "$n" -ge 118 ] && [ "$other" = 0 ] && ok "libvirtuose.so.4 exports the $n virt* functions and nothing else" || nok "libvirtuose.so.4 exports $n virt* and $other other functions"
+[ "$n" -ge 120 ] && [ "$other" = 0 ] && ok "libvirtuose.so.4 exports the $n virt* functions and nothing else" || nok "libvirtuose.so.4 exports $n virt* and $other other functions"
+nm -D --defined-only "$lib/libvirtuose.so.4" | grep -c ' T virtCallDLL$' | grep -qx 1 && ok "libvirtuose.so.4 exports virtCallDLL (Haption's 3.x entry point)" || nok "virtCallDLL not exported"
 
 # ---- build apps.c as the applications' build files do
 src="$ROOT/tests/vapi/apps.c"
@@ -99,8 +120,25 @@ build() { # NAME NEEDED(expected, or "-" for static) COMMAND...
 build lvirtuose libvirtuose.so.4 cc -std=c99 -D_POSIX_C_SOURCE=200809L "${cflags[@]}" -I "$inc" "$src" -L "$lib" -lvirtuose -lm -o "$results/apps-lvirtuose"
 build lVirtuoseAPI libVirtuoseAPI.so.4 cc -std=c99 -D_POSIX_C_SOURCE=200809L "${cflags[@]}" -I "$inc" "$src" -L "$lib" -lVirtuoseAPI -lm -o "$results/apps-lVirtuoseAPI"
 build lvirtuoseDLL libvirtuoseDLL.so.4 cc -std=c99 -D_POSIX_C_SOURCE=200809L "${cflags[@]}" -I "$inc" "$src" -L "$lib" -lvirtuoseDLL -lm -o "$results/apps-lvirtuoseDLL"
-build l-virtuoseAPI.so virtuoseAPI.so cc -std=c99 -D_POSIX_C_SOURCE=200809L "${cflags[@]}" -I "$inc" "$src" -L "$lib" -l:virtuoseAPI.so -lm -o "$results/apps-l-virtuoseAPI.so"
+build l-virtuoseAPI.so libvirtuose.so.4 cc -std=c99 -D_POSIX_C_SOURCE=200809L "${cflags[@]}" -I "$inc" "$src" -L "$lib" -l:virtuoseAPI.so -lm -o "$results/apps-l-virtuoseAPI.so"
 build cxx libvirtuose.so.4 c++ -x c++ "${cflags[@]}" -I "$inc" "$src" -x none -L "$lib" -lvirtuose -o "$results/apps-cxx"
+build subdir libvirtuose.so.4 cc -std=c99 -D_POSIX_C_SOURCE=200809L -DVIRTUOSE_SUBDIR "${cflags[@]}" -I "$inc" "$src" -L "$lib" -lvirtuose -lm -o "$results/apps-subdir"
+# CHAI3D 3.2's makefiles with VIRTUOSE_DIR at the prefix (C++).
+vdir="$stage/usr"
+build chai3d libvirtuose.so.4 c++ -x c++ "${cflags[@]}" -I "$vdir/include" "$src" -x none -L "$vdir/lib/lin-$arch" -l:virtuoseAPI.so -o "$results/apps-chai3d"
+# Haption's 3.x header form, next to the application's sources (first on
+# the include path): the application defines every virt* itself, each
+# calling virtCallDLL.
+h3="$ROOT/tests/vapi/haption3"
+build haption3 libvirtuose.so.4 cc -std=c99 -D_POSIX_C_SOURCE=200809L "${cflags[@]}" -I "$h3" -I "$inc" "$src" -L "$lib" -lvirtuose -lm -o "$results/apps-haption3"
+build haption3-cxx libvirtuose.so.4 c++ -x c++ "${cflags[@]}" -I "$h3" -I "$inc" "$src" -x none -L "$lib" -lvirtuose -o "$results/apps-haption3-cxx"
+build haption3-380 libvirtuose.so.4 cc -std=c99 -D_POSIX_C_SOURCE=200809L -DVIRTUOSE_API_380 "${cflags[@]}" -I "$h3" -I "$inc" "$src" -L "$lib" -lvirtuose -lm -o "$results/apps-haption3-380"
+if [ -n "${built[haption3]:-}" ]; then
+  nv=$(nm -D --defined-only "$results/apps-haption3" | awk '$3 ~ /^virt/' | wc -l)
+  nm -D --undefined-only "$results/apps-haption3" | grep -c ' virtCallDLL$' | grep -qx 1 && [ "$nv" -ge 118 ] \
+    && ok "haption3: the program defines its $nv virt* wrappers itself and calls the library's virtCallDLL" \
+    || nok "haption3: $nv virt* defined in the program, virtCallDLL $(nm -D "$results/apps-haption3" | grep -c virtCallDLL)"
+fi
 if pc=$(PKG_CONFIG_PATH="$lib/pkgconfig" pkg-config --cflags --libs virtuose 2>"$results/pkg-config.err"); then
   echo "# pkg-config --cflags --libs virtuose: $pc"
   # shellcheck disable=SC2086
@@ -177,11 +215,37 @@ run_one() { # NAME FIRST SECOND
     && ok "$name: closed its session" || nok "$name: the session was not closed"
 }
 k=0
-for name in lvirtuose lVirtuoseAPI lvirtuoseDLL l-virtuoseAPI.so cxx pkg-config static cmake cmake-static cmake-vars; do
+for name in lvirtuose lVirtuoseAPI lvirtuoseDLL l-virtuoseAPI.so cxx subdir chai3d haption3 haption3-cxx haption3-380 \
+            pkg-config static cmake cmake-static cmake-vars; do
   [ -n "${built[$name]:-}" ] || continue
   run_one "$name" $((k % 2)) $(((k / 2) % 2))
   k=$((k + 1))
 done
 # The program's own checks, in full, for the first run.
-sed 's/^/# apps-lvirtuose: /' "$results/run-lvirtuose/apps.txt" 2>/dev/null | head -60
+sed 's/^/# apps-lvirtuose: /' "$results/run-lvirtuose/apps.txt" 2>/dev/null | head -70
+
+# ---- the default install, as a newcomer runs it
+di="$ROOT/tests/vapi/default-install.sh"
+if unshare -m true 2>/dev/null; then
+  di_cmd=(unshare -m bash "$di" namespace)
+elif unshare -rm true 2>/dev/null; then
+  di_cmd=(unshare -rm bash "$di" namespace)
+elif [ "$(id -u)" = 0 ]; then
+  di_cmd=(bash "$di" host)
+else
+  di_cmd=()
+fi
+if [ ${#di_cmd[@]} -gt 0 ]; then
+  "${di_cmd[@]}" "$results/default-install" "$fc" "$ms" > "$results/default-install.txt" 2>&1
+  while IFS= read -r line; do
+    case "$line" in
+      "ok - "*) ok "${line#ok - }" ;;
+      "not ok - "*) nok "${line#not ok - }" ;;
+      *) echo "$line" ;;
+    esac
+  done < "$results/default-install.txt"
+  grep -qE '^ok - default install: first: ' "$results/default-install.txt" || nok "default install: the first program did not run"
+else
+  nok "default install: neither a mount namespace (unshare -m, unshare -rm) nor root to install into /usr/local"
+fi
 finish

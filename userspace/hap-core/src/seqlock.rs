@@ -279,6 +279,41 @@ impl<'a> ReadOp<'a> {
 mod tests {
     use super::*;
 
+    /// Documentation/architecture.md quotes the count of each exploration
+    /// on the row that names these tests: the count a run gives must be
+    /// there (written with spaces between groups of three digits).
+    fn quoted_in_architecture(tests: &str, runs: usize) {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../Documentation/architecture.md"
+        );
+        let doc = std::fs::read_to_string(path).unwrap();
+        let row = doc
+            .lines()
+            .find(|l| l.contains(tests))
+            .unwrap_or_else(|| panic!("architecture.md has no row naming {tests}"));
+        let digits = runs.to_string();
+        let mut grouped = String::new();
+        for (i, c) in digits.chars().enumerate() {
+            if i > 0 && (digits.len() - i) % 3 == 0 {
+                grouped.push(' ');
+            }
+            grouped.push(c);
+        }
+        let quoted = row.match_indices(&grouped).any(|(at, _)| {
+            let before = row[..at].chars().next_back();
+            let after = row[at + grouped.len()..].chars().next();
+            !before.is_some_and(|c| {
+                c.is_ascii_digit()
+                    || c == ' ' && row[..at].trim_end().ends_with(|d: char| d.is_ascii_digit())
+            }) && !after.is_some_and(|c| c.is_ascii_digit())
+        });
+        assert!(
+            quoted,
+            "architecture.md's row of {tests} does not quote {grouped} interleavings: {row}"
+        );
+    }
+
     fn words(n: usize) -> SeqWords<Vec<AtomicU64>> {
         SeqWords::new((0..n).map(|_| AtomicU64::new(0)).collect())
     }
@@ -438,6 +473,7 @@ mod tests {
     fn every_interleaving_two_words() {
         let runs = explore(2, 2, 3);
         eprintln!("{runs} interleavings");
+        quoted_in_architecture("seqlock::tests::every_interleaving_", runs);
         assert!(runs > 1000, "{runs}");
     }
 
@@ -445,6 +481,7 @@ mod tests {
     fn every_interleaving_three_words_one_write() {
         let runs = explore(3, 1, 3);
         eprintln!("{runs} interleavings");
+        quoted_in_architecture("seqlock::tests::every_interleaving_", runs);
         assert!(runs > 100, "{runs}");
     }
 

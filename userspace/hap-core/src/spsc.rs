@@ -452,6 +452,41 @@ impl<'a> PopOp<'a> {
 mod tests {
     use super::*;
 
+    /// Documentation/architecture.md quotes the count of each exploration
+    /// on the row that names these tests: the count a run gives must be
+    /// there (written with spaces between groups of three digits).
+    fn quoted_in_architecture(tests: &str, runs: usize) {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../Documentation/architecture.md"
+        );
+        let doc = std::fs::read_to_string(path).unwrap();
+        let row = doc
+            .lines()
+            .find(|l| l.contains(tests))
+            .unwrap_or_else(|| panic!("architecture.md has no row naming {tests}"));
+        let digits = runs.to_string();
+        let mut grouped = String::new();
+        for (i, c) in digits.chars().enumerate() {
+            if i > 0 && (digits.len() - i) % 3 == 0 {
+                grouped.push(' ');
+            }
+            grouped.push(c);
+        }
+        let quoted = row.match_indices(&grouped).any(|(at, _)| {
+            let before = row[..at].chars().next_back();
+            let after = row[at + grouped.len()..].chars().next();
+            !before.is_some_and(|c| {
+                c.is_ascii_digit()
+                    || c == ' ' && row[..at].trim_end().ends_with(|d: char| d.is_ascii_digit())
+            }) && !after.is_some_and(|c| c.is_ascii_digit())
+        });
+        assert!(
+            quoted,
+            "architecture.md's row of {tests} does not quote {grouped} interleavings: {row}"
+        );
+    }
+
     fn ring(cap: usize, rec: usize) -> Spsc<Vec<AtomicU64>> {
         let words = (0..storage_words(cap, rec))
             .map(|_| AtomicU64::new(0))
@@ -776,6 +811,7 @@ mod tests {
         // Records of 9 then 8 bytes: 3 words a slot (length + 2 data words).
         let runs = explore(1, 9, 3, 3);
         eprintln!("{runs} interleavings");
+        quoted_in_architecture("spsc::tests::every_interleaving_", runs);
         assert!(runs > 50, "{runs}");
     }
 
@@ -784,6 +820,7 @@ mod tests {
         // Three pushes into one slot: some are refused (full), counted.
         let runs = explore(1, 4, 4, 3);
         eprintln!("{runs} interleavings");
+        quoted_in_architecture("spsc::tests::every_interleaving_", runs);
         assert!(runs > 50, "{runs}");
     }
 
@@ -791,6 +828,7 @@ mod tests {
     fn every_interleaving_capacity_2() {
         let runs = explore(2, 8, 3, 3);
         eprintln!("{runs} interleavings");
+        quoted_in_architecture("spsc::tests::every_interleaving_", runs);
         assert!(runs > 1000, "{runs}");
     }
 
@@ -798,6 +836,7 @@ mod tests {
     fn every_interleaving_capacity_3_consumer_ahead() {
         let runs = explore(3, 4, 3, 4);
         eprintln!("{runs} interleavings");
+        quoted_in_architecture("spsc::tests::every_interleaving_", runs);
         assert!(runs > 1000, "{runs}");
     }
 }

@@ -9,6 +9,11 @@
 //! (after a failed `virtOpen`). Float arrays: position `float[7]` (x, y, z, qx, qy, qz, qw),
 //! speed and force `float[6]`.
 //!
+//! A `VirtContext` is a handle, not an address: `virtOpen` hands out each
+//! value once, and a call on a closed or never-opened one fails at once
+//! with `VIRT_E_INVALID_CONTEXT` (NULL too, except in the conversions,
+//! which need no context).
+//!
 //! A context may be used from several threads at once (the application,
 //! the periodic callback loop, the trajectory recorder): its session (a
 //! read-write lock: requests, readings and set-points share it), its
@@ -16,10 +21,11 @@
 //! together.
 
 use std::cell::RefCell;
+use std::collections::BTreeMap;
 use std::ffi::{c_char, c_float, c_int, c_uint, c_ushort, c_void, CStr, CString};
 use std::io::Write;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::thread::{JoinHandle, ThreadId};
 use std::time::{Duration, Instant};
@@ -31,6 +37,9 @@ use hap_core::vp::{alarm, status};
 
 use crate::kin::{self, Frames, Offset};
 use crate::{CommandType, IndexingMode, VirtContext, VirtError};
+
+mod dll;
+pub use dll::{dispatch as call_dll, DllFunction};
 
 // ---- VirtuoseAPI.h values ----------------------------------------------
 
@@ -560,23 +569,64 @@ impl VirtContextS {
     }
 }
 
-/// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
-unsafe fn ctx<'a>(vc: *mut c_void) -> R<&'a VirtContextS> {
-    // SAFETY: per the caller's contract.
-    unsafe { (vc as *const VirtContextS).as_ref() }
-        .ok_or_else(|| ApiError::new(VIRT_E_INVALID_CONTEXT, "null or invalid context"))
+// ---- handles ------------------------------------------------------------------
+
+/// The open contexts, by handle. A `VirtContext` given to C is a number
+/// handed out once by `virtOpen` (never an address, never reused), so a
+/// closed or never-opened handle is simply missing here: every call on it
+/// fails at once with `VIRT_E_INVALID_CONTEXT`, whatever the memory it
+/// once named holds now. The small values (from `HANDLE_BASE`) also
+/// survive Haption's older headers that passed the context through an
+/// `int`.
+static CONTEXTS: RwLock<BTreeMap<usize, Arc<VirtContextS>>> = RwLock::new(BTreeMap::new());
+/// The first handle; the next one `virtOpen` hands out.
+const HANDLE_BASE: usize = 0x4843_0000;
+static NEXT_HANDLE: AtomicUsize = AtomicUsize::new(HANDLE_BASE);
+
+fn contexts() -> RwLockReadGuard<'static, BTreeMap<usize, Arc<VirtContextS>>> {
+    match CONTEXTS.read() {
+        Ok(g) => g,
+        Err(p) => p.into_inner(),
+    }
+}
+
+fn contexts_mut() -> RwLockWriteGuard<'static, BTreeMap<usize, Arc<VirtContextS>>> {
+    match CONTEXTS.write() {
+        Ok(g) => g,
+        Err(p) => p.into_inner(),
+    }
+}
+
+/// Register a new context; its handle.
+fn register(c: VirtContextS) -> *mut c_void {
+    let h = NEXT_HANDLE.fetch_add(1, Ordering::SeqCst);
+    contexts_mut().insert(h, Arc::new(c));
+    h as *mut c_void
+}
+
+/// The context of a handle: NULL, closed and never-opened handles are
+/// `VIRT_E_INVALID_CONTEXT`.
+fn ctx(vc: *mut c_void) -> R<Arc<VirtContextS>> {
+    if vc.is_null() {
+        return Err(ApiError::new(VIRT_E_INVALID_CONTEXT, "null context"));
+    }
+    contexts().get(&(vc as usize)).cloned().ok_or_else(|| {
+        ApiError::new(
+            VIRT_E_INVALID_CONTEXT,
+            "invalid context: closed by virtClose or never returned by virtOpen",
+        )
+    })
 }
 
 /// Run `f` on the context and turn its result into the C status.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
-unsafe fn run(vc: *mut c_void, f: impl FnOnce(&VirtContextS) -> R<()>) -> c_int {
-    // SAFETY: per the caller's contract.
-    match unsafe { ctx(vc) } {
+/// The pointers `f` dereferences are valid as its caller's `# Safety`
+/// requires (`vc` itself may be anything: it is looked up).
+unsafe fn run(vc: *mut c_void, f: impl FnOnce(&Arc<VirtContextS>) -> R<()>) -> c_int {
+    match ctx(vc) {
         Ok(c) => {
-            let r = f(c);
+            let r = f(&c);
             c.last_error.store(
                 r.as_ref().err().map(|e| e.code).unwrap_or(0),
                 Ordering::SeqCst,
@@ -684,7 +734,7 @@ pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut c_void {
         Ok(vc) => {
             clear_error();
             let timeout_s = vc.options().reply_timeout.as_secs_f32() * vc.options().attempts as f32;
-            let b = Box::new(VirtContextS {
+            register(VirtContextS {
                 vc: RwLock::new(vc),
                 st: Mutex::new(ApiState {
                     timeout_s,
@@ -696,8 +746,7 @@ pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut c_void {
                 overruns: AtomicU32::new(0),
                 last_error: AtomicI32::new(0),
                 closing: AtomicBool::new(false),
-            });
-            Box::into_raw(b) as *mut c_void
+            })
         }
         Err(e) => {
             set_error(&e.into());
@@ -707,45 +756,42 @@ pub unsafe extern "C" fn virtOpen(name: *const c_char) -> *mut c_void {
 }
 
 /// Stop the callback loop and the recorder, close the session and free the
-/// context (the pointer becomes invalid).
+/// context: the handle is invalid from then on (every call on it fails
+/// with `VIRT_E_INVALID_CONTEXT`).
 ///
 /// Refused (`VIRT_E_CALL_TIME`) from the context's own periodic callback.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None beyond the C ABI: `vc` may be any value (it is looked up).
 #[no_mangle]
 pub unsafe extern "C" fn virtClose(vc: *mut c_void) -> c_int {
-    if vc.is_null() {
-        return status_of(Err(ApiError::new(VIRT_E_INVALID_CONTEXT, "null context")));
-    }
-    // SAFETY: live pointer from Box::into_raw, per the contract.
-    let c = unsafe { &*(vc as *const VirtContextS) };
-    // From the context's own callback, freeing it would pull the loop's
-    // context from under it: refused. So is a second virtClose while the
+    let c = match ctx(vc) {
+        Ok(c) => c,
+        Err(e) => return status_of(Err(e)),
+    };
+    // From the context's own callback, closing would join the loop's
+    // thread from itself: refused. So is a second virtClose while the
     // first waits for a running callback to return (the callback calling
-    // virtClose then): the first one frees the context.
+    // virtClose then): the first one closes the context.
     let in_callback = lock(&c.periodic_loop)
         .as_ref()
         .map(|w| w.id == std::thread::current().id())
         .unwrap_or(false);
     if in_callback || c.closing.swap(true, Ordering::SeqCst) {
-        // SAFETY: as above.
-        return unsafe {
-            run(vc, |_| {
-                Err(ApiError::new(
-                    VIRT_E_CALL_TIME,
-                    "virtClose from the periodic callback or during virtClose: call virtStopLoop there, virtClose after",
-                ))
-            })
-        };
+        let e = ApiError::new(
+            VIRT_E_CALL_TIME,
+            "virtClose from the periodic callback or during virtClose: call virtStopLoop there, virtClose after",
+        );
+        c.last_error.store(e.code, Ordering::SeqCst);
+        return status_of(Err(e));
     }
-    // Joined before the context is owned again: the callback may still use
-    // it until it returns.
+    // Joined while the handle is still valid: the callback may use it
+    // until it returns.
     c.stop_workers();
-    // SAFETY: live pointer from Box::into_raw, per the contract; no worker
-    // thread is left that could use it.
-    let b = unsafe { Box::from_raw(vc as *mut VirtContextS) };
-    let r = b.session_mut().close();
+    contexts_mut().remove(&(vc as usize));
+    // A call another thread has in progress keeps its own reference; the
+    // context is freed when the last one ends.
+    let r = c.session_mut().close();
     status_of(r.map_err(ApiError::from))
 }
 
@@ -760,7 +806,7 @@ pub unsafe extern "C" fn virtAPIVersion(major: *mut c_int, minor: *mut c_int) ->
 /// The controller's protocol version (major) and 0.
 ///
 /// # Safety
-/// `vc` is NULL or live; each pointer is NULL or writable.
+/// Each pointer is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetControlerVersion(
     vc: *mut c_void,
@@ -779,7 +825,7 @@ pub unsafe extern "C" fn virtGetControlerVersion(
 /// Device type `0x4843` ("HC") and the session id as serial number.
 ///
 /// # Safety
-/// `vc` is NULL or live; each pointer is NULL or writable.
+/// Each pointer is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetDeviceID(
     vc: *mut c_void,
@@ -801,20 +847,23 @@ pub unsafe extern "C" fn virtGetDeviceID(
 /// (needed after a failed virtOpen).
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtGetErrorCode(vc: *mut c_void) -> c_int {
-    // SAFETY: per the contract.
-    match unsafe { (vc as *const VirtContextS).as_ref() } {
-        Some(c) => c.last_error.load(Ordering::SeqCst),
-        None => LAST.with(|l| l.borrow().0),
+    if vc.is_null() {
+        return LAST.with(|l| l.borrow().0);
+    }
+    match ctx(vc) {
+        Ok(c) => c.last_error.load(Ordering::SeqCst),
+        Err(e) => e.code,
     }
 }
 
-/// `virtGetErrorCode(vc)` in `*error`.
+/// `virtGetErrorCode(vc)` in `*error`; -1 when `vc` is neither NULL nor an
+/// open context (`*error` is then VIRT_E_INVALID_CONTEXT).
 ///
 /// # Safety
-/// `vc` is NULL or live; `error` is NULL or writable.
+/// `error` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetError(vc: *mut c_void, error: *mut c_int) -> c_int {
     // SAFETY: per the contract.
@@ -823,7 +872,11 @@ pub unsafe extern "C" fn virtGetError(vc: *mut c_void, error: *mut c_int) -> c_i
     match unsafe { error.as_mut() } {
         Some(p) => {
             *p = code;
-            0
+            if vc.is_null() || ctx(vc).is_ok() {
+                0
+            } else {
+                -1
+            }
         }
         None => -1,
     }
@@ -876,7 +929,7 @@ fn generic(code: c_int) -> &'static CStr {
 /// Time-out of the requests and of the first answer, s (> 0).
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtSetTimeoutValue(vc: *mut c_void, t: c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -902,7 +955,7 @@ pub unsafe extern "C" fn virtSetTimeoutValue(vc: *mut c_void, t: c_float) -> c_i
 }
 
 /// # Safety
-/// `vc` is NULL or live; `t` is NULL or writable.
+/// `t` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetTimeoutValue(vc: *mut c_void, t: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -912,7 +965,7 @@ pub unsafe extern "C" fn virtGetTimeoutValue(vc: *mut c_void, t: *mut c_float) -
 /// Stored; hapticctrl prints no debug output.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtSetDebugFlags(vc: *mut c_void, flag: c_ushort) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -927,7 +980,7 @@ pub unsafe extern "C" fn virtSetDebugFlags(vc: *mut c_void, flag: c_ushort) -> c
 /// The file the trajectory recorder writes (virtTrajRecordStart).
 ///
 /// # Safety
-/// `vc` is NULL or live; `name` is NULL or a NUL-terminated string.
+/// `name` is NULL or a NUL-terminated string.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetOutputFile(vc: *mut c_void, name: *mut c_char) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -957,7 +1010,7 @@ extern "C" {
 /// to a C `FILE *`.
 ///
 /// # Safety
-/// `vc` is NULL or live; `file` is NULL or an open `FILE *`.
+/// `file` is NULL or an open `FILE *`.
 #[no_mangle]
 pub unsafe extern "C" fn virtDisplayHardwareStatus(vc: *mut c_void, file: *mut c_void) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1006,7 +1059,7 @@ fn on(bit: u32) -> &'static str {
 // ---- configuration ------------------------------------------------------------
 
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtSetTimeStep(vc: *mut c_void, step: c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1020,7 +1073,7 @@ pub unsafe extern "C" fn virtSetTimeStep(vc: *mut c_void, step: c_float) -> c_in
 }
 
 /// # Safety
-/// `vc` is NULL or live; `step` is NULL or writable.
+/// `step` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetTimeStep(vc: *mut c_void, step: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1032,7 +1085,7 @@ pub unsafe extern "C" fn virtGetTimeStep(vc: *mut c_void, step: *mut c_float) ->
 /// 6 and 7 (articular): VIRT_E_NOT_IMPLEMENTED.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtSetCommandType(vc: *mut c_void, ty: c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1055,7 +1108,7 @@ pub unsafe extern "C" fn virtSetCommandType(vc: *mut c_void, ty: c_int) -> c_int
 }
 
 /// # Safety
-/// `vc` is NULL or live; `ty` is NULL or points to a writable VirtCommandType.
+/// `ty` is NULL or points to a writable VirtCommandType.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetCommandType(vc: *mut c_void, ty: *mut c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1066,7 +1119,7 @@ pub unsafe extern "C" fn virtGetCommandType(vc: *mut c_void, ty: *mut c_int) -> 
 /// 6 and 7 (rotations only): VIRT_E_NOT_IMPLEMENTED.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtSetIndexingMode(vc: *mut c_void, mode: c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1093,7 +1146,7 @@ pub unsafe extern "C" fn virtSetIndexingMode(vc: *mut c_void, mode: c_int) -> c_
 }
 
 /// # Safety
-/// `vc` is NULL or live; `mode` is NULL or points to a writable VirtIndexingType.
+/// `mode` is NULL or points to a writable VirtIndexingType.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetIndexingMode(vc: *mut c_void, mode: *mut c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1101,7 +1154,7 @@ pub unsafe extern "C" fn virtGetIndexingMode(vc: *mut c_void, mode: *mut c_int) 
 }
 
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtSetForceFactor(vc: *mut c_void, k: c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1115,7 +1168,7 @@ pub unsafe extern "C" fn virtSetForceFactor(vc: *mut c_void, k: c_float) -> c_in
 }
 
 /// # Safety
-/// `vc` is NULL or live; `k` is NULL or writable.
+/// `k` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetForceFactor(vc: *mut c_void, k: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1123,7 +1176,7 @@ pub unsafe extern "C" fn virtGetForceFactor(vc: *mut c_void, k: *mut c_float) ->
 }
 
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtSetSpeedFactor(vc: *mut c_void, k: c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1137,7 +1190,7 @@ pub unsafe extern "C" fn virtSetSpeedFactor(vc: *mut c_void, k: c_float) -> c_in
 }
 
 /// # Safety
-/// `vc` is NULL or live; `k` is NULL or writable.
+/// `k` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetSpeedFactor(vc: *mut c_void, k: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1158,7 +1211,7 @@ fn normalized(p: [f32; 7]) -> [f32; 7] {
 }
 
 /// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
+/// `pos` is NULL or points to 7 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetBaseFrame(vc: *mut c_void, pos: *const c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1178,7 +1231,7 @@ pub unsafe extern "C" fn virtSetBaseFrame(vc: *mut c_void, pos: *const c_float) 
 /// normalized).
 ///
 /// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
+/// `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetBaseFrame(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1186,7 +1239,7 @@ pub unsafe extern "C" fn virtGetBaseFrame(vc: *mut c_void, pos: *mut c_float) ->
 }
 
 /// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
+/// `pos` is NULL or points to 7 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetObservationFrame(vc: *mut c_void, pos: *const c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1203,7 +1256,7 @@ pub unsafe extern "C" fn virtSetObservationFrame(vc: *mut c_void, pos: *const c_
 /// The observation frame as set.
 ///
 /// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
+/// `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetObservationFrame(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1217,7 +1270,7 @@ pub unsafe extern "C" fn virtGetObservationFrame(vc: *mut c_void, pos: *mut c_fl
 /// sets the frame again as it moves).
 ///
 /// # Safety
-/// `vc` is NULL or live; `speed` is NULL or points to 6 floats.
+/// `speed` is NULL or points to 6 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetObservationFrameSpeed(
     vc: *mut c_void,
@@ -1237,7 +1290,7 @@ pub unsafe extern "C" fn virtSetObservationFrameSpeed(
 /// 6 joints.
 ///
 /// # Safety
-/// `vc` is NULL or live; `n` is NULL or writable.
+/// `n` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetNbAxes(vc: *mut c_void, n: *mut c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1247,7 +1300,7 @@ pub unsafe extern "C" fn virtGetNbAxes(vc: *mut c_void, n: *mut c_int) -> c_int 
 // ---- power, safety, buttons -------------------------------------------------------
 
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtSetPowerOn(vc: *mut c_void, power: c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1255,7 +1308,7 @@ pub unsafe extern "C" fn virtSetPowerOn(vc: *mut c_void, power: c_int) -> c_int 
 }
 
 /// # Safety
-/// `vc` is NULL or live; `power` is NULL or points to a writable int.
+/// `power` is NULL or points to a writable int.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetPowerOn(vc: *mut c_void, power: *mut c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1265,7 +1318,7 @@ pub unsafe extern "C" fn virtGetPowerOn(vc: *mut c_void, power: *mut c_int) -> c
 /// 1 while the user holds the handle.
 ///
 /// # Safety
-/// `vc` is NULL or live; `dead_man` is NULL or points to a writable int.
+/// `dead_man` is NULL or points to a writable int.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetDeadMan(vc: *mut c_void, dead_man: *mut c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1280,7 +1333,7 @@ pub unsafe extern "C" fn virtGetDeadMan(vc: *mut c_void, dead_man: *mut c_int) -
 /// released), 0 when the emergency stop is pressed.
 ///
 /// # Safety
-/// `vc` is NULL or live; `estop` is NULL or points to a writable int.
+/// `estop` is NULL or points to a writable int.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetEmergencyStop(vc: *mut c_void, estop: *mut c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1298,7 +1351,7 @@ pub unsafe extern "C" fn virtGetEmergencyStop(vc: *mut c_void, estop: *mut c_int
 /// the last read (cleared by this read).
 ///
 /// # Safety
-/// `vc` is NULL or live; `alarm` is NULL or points to a writable unsigned int.
+/// `alarm` is NULL or points to a writable unsigned int.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetAlarm(vc: *mut c_void, alarm_out: *mut c_uint) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1322,7 +1375,7 @@ pub unsafe extern "C" fn virtGetAlarm(vc: *mut c_void, alarm_out: *mut c_uint) -
 /// engaged (it cuts every motor), 0 otherwise.
 ///
 /// # Safety
-/// `vc` is NULL or live; `error` is NULL or writable.
+/// `error` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetFailure(vc: *mut c_void, error: *mut c_uint) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1338,7 +1391,7 @@ pub unsafe extern "C" fn virtGetFailure(vc: *mut c_void, error: *mut c_uint) -> 
 /// limits (`hap_core::arm::Q_MIN/Q_MAX`, margin 0.02 rad).
 ///
 /// # Safety
-/// `vc` is NULL or live; `bounds` is NULL or writable.
+/// `bounds` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtIsInBounds(vc: *mut c_void, bounds: *mut c_uint) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1362,7 +1415,7 @@ pub fn button_bit(n: c_int) -> Option<u32> {
 /// (a button the handle does not have is never pressed), without error.
 ///
 /// # Safety
-/// `vc` is NULL or live; `state` is NULL or writable.
+/// `state` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetButton(vc: *mut c_void, n: c_int, state: *mut c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1384,7 +1437,7 @@ pub unsafe extern "C" fn virtGetButton(vc: *mut c_void, n: c_int, state: *mut c_
 /// pressed, or forced by virtForceShiftButton(1).
 ///
 /// # Safety
-/// `vc` is NULL or live; `shift` is NULL or writable.
+/// `shift` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtIsInShiftPosition(vc: *mut c_void, shift: *mut c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1410,7 +1463,7 @@ pub unsafe extern "C" fn virtIsInShiftPosition(vc: *mut c_void, shift: *mut c_in
 /// poses back). In INDEXING_NONE it only shows in virtIsInShiftPosition.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtForceShiftButton(vc: *mut c_void, force_shift: c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1463,7 +1516,7 @@ pub unsafe extern "C" fn virtForceShiftButton(vc: *mut c_void, force_shift: c_in
 /// controller stops answering for the time-out value.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtWaitPressButton(vc: *mut c_void, n: c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1500,7 +1553,7 @@ pub unsafe extern "C" fn virtWaitPressButton(vc: *mut c_void, n: c_int) -> c_int
 /// Attach a virtual object: mass (kg) and `float[3]` principal inertia.
 ///
 /// # Safety
-/// `vc` is NULL or live; `mxmymz` is NULL or points to 3 floats.
+/// `mxmymz` is NULL or points to 3 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtAttachVO(
     vc: *mut c_void,
@@ -1534,7 +1587,7 @@ pub unsafe extern "C" fn virtAttachVO(
 /// wrench on the object, virtGetPosition the object's pose.
 ///
 /// # Safety
-/// `vc` is NULL or live; `ks` and `bs` are NULL or point to 6 floats.
+/// `ks` and `bs` are NULL or point to 6 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtAttachQSVO(
     vc: *mut c_void,
@@ -1571,7 +1624,7 @@ pub unsafe extern "C" fn virtAttachQSVO(
 /// Same as virtAttachVO (the controller has one virtual object).
 ///
 /// # Safety
-/// `vc` is NULL or live; `mxmymz` is NULL or points to 3 floats.
+/// `mxmymz` is NULL or points to 3 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtAttachVOAvatar(
     vc: *mut c_void,
@@ -1583,7 +1636,7 @@ pub unsafe extern "C" fn virtAttachVOAvatar(
 }
 
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtDetachVO(vc: *mut c_void) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1601,7 +1654,7 @@ pub unsafe extern "C" fn virtDetachVO(vc: *mut c_void) -> c_int {
 /// Same as virtDetachVO.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtDetachVOAvatar(vc: *mut c_void) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1615,7 +1668,7 @@ pub unsafe extern "C" fn virtDetachVOAvatar(vc: *mut c_void) -> c_int {
 /// offset of forced shifts is taken off before it is sent).
 ///
 /// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 floats.
+/// `pos` is NULL or points to 7 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetPosition(vc: *mut c_void, pos: *const c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1659,7 +1712,7 @@ pub unsafe extern "C" fn virtSetPosition(vc: *mut c_void, pos: *const c_float) -
 /// Set the virtual object's twist (sent with the next virtSetPosition).
 ///
 /// # Safety
-/// `vc` is NULL or live; `speed` is NULL or points to 6 floats.
+/// `speed` is NULL or points to 6 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetSpeed(vc: *mut c_void, speed: *const c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1678,7 +1731,7 @@ pub unsafe extern "C" fn virtSetSpeed(vc: *mut c_void, speed: *const c_float) ->
 /// once, or after the callback when called from the periodic loop.
 ///
 /// # Safety
-/// `vc` is NULL or live; `force` is NULL or points to 6 floats.
+/// `force` is NULL or points to 6 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetForce(vc: *mut c_void, force: *const c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1709,7 +1762,7 @@ pub unsafe extern "C" fn virtSetForce(vc: *mut c_void, force: *const c_float) ->
 /// previous one; zeros remove it).
 ///
 /// # Safety
-/// `vc` is NULL or live; `force` is NULL or points to 6 floats.
+/// `force` is NULL or points to 6 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtAddForce(vc: *mut c_void, force: *const c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1735,7 +1788,7 @@ pub unsafe extern "C" fn virtAddForce(vc: *mut c_void, force: *const c_float) ->
 /// virtSetForce/virtAddForce (both > 0).
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtSaturateTorque(
     vc: *mut c_void,
@@ -1761,7 +1814,7 @@ pub unsafe extern "C" fn virtSaturateTorque(
 /// type set by virtSetCommandType again.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtEnableForceFeedback(vc: *mut c_void, enable: c_int) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1792,7 +1845,7 @@ pub unsafe extern "C" fn virtEnableForceFeedback(vc: *mut c_void, enable: c_int)
 /// with an attached object of mass `m`.
 ///
 /// # Safety
-/// `vc` is NULL or live; `stiffness` is NULL or writable.
+/// `stiffness` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetSimulationStiffness(
     vc: *mut c_void,
@@ -1806,7 +1859,7 @@ pub unsafe extern "C" fn virtGetSimulationStiffness(
 /// virtGetSimulationStiffness).
 ///
 /// # Safety
-/// `vc` is NULL or live; `damping` is NULL or writable.
+/// `damping` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetSimulationDamping(vc: *mut c_void, damping: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1819,7 +1872,7 @@ pub unsafe extern "C" fn virtGetSimulationDamping(vc: *mut c_void, damping: *mut
 /// otherwise the avatar (virtGetAvatarPosition).
 ///
 /// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
+/// `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1853,7 +1906,7 @@ pub unsafe extern "C" fn virtGetPosition(vc: *mut c_void, pos: *mut c_float) -> 
 /// shifts (virtForceShiftButton).
 ///
 /// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
+/// `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetAvatarPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1870,7 +1923,7 @@ pub unsafe extern "C" fn virtGetAvatarPosition(vc: *mut c_void, pos: *mut c_floa
 /// Handle pose in the arm base frame, arm units.
 ///
 /// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 7 writable floats.
+/// `pos` is NULL or points to 7 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetPhysicalPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1880,7 +1933,7 @@ pub unsafe extern "C" fn virtGetPhysicalPosition(vc: *mut c_void, pos: *mut c_fl
 /// Handle twist, `float[6]`, world frame.
 ///
 /// # Safety
-/// `vc` is NULL or live; `speed` is NULL or points to 6 writable floats.
+/// `speed` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetSpeed(vc: *mut c_void, speed: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1890,7 +1943,7 @@ pub unsafe extern "C" fn virtGetSpeed(vc: *mut c_void, speed: *mut c_float) -> c
 /// Handle twist in the arm base frame, arm units.
 ///
 /// # Safety
-/// `vc` is NULL or live; `speed` is NULL or points to 6 writable floats.
+/// `speed` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetPhysicalSpeed(vc: *mut c_void, speed: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1906,7 +1959,7 @@ pub unsafe extern "C" fn virtGetPhysicalSpeed(vc: *mut c_void, speed: *mut c_flo
 /// Coupling wrench to apply to the virtual object, `float[6]`.
 ///
 /// # Safety
-/// `vc` is NULL or live; `force` is NULL or points to 6 writable floats.
+/// `force` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetForce(vc: *mut c_void, force: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1916,7 +1969,7 @@ pub unsafe extern "C" fn virtGetForce(vc: *mut c_void, force: *mut c_float) -> c
 /// The controller's servo cycle counter of the last answer.
 ///
 /// # Safety
-/// `vc` is NULL or live; `time` is NULL or writable.
+/// `time` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetTimeLastUpdate(vc: *mut c_void, time: *mut c_uint) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1928,7 +1981,7 @@ pub unsafe extern "C" fn virtGetTimeLastUpdate(vc: *mut c_void, time: *mut c_uin
 /// The 6 joint angles (rad), from the handle pose and the arm model.
 ///
 /// # Safety
-/// `vc` is NULL or live; `pos` is NULL or points to 6 writable floats.
+/// `pos` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetArticularPosition(vc: *mut c_void, pos: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1943,7 +1996,7 @@ pub unsafe extern "C" fn virtGetArticularPosition(vc: *mut c_void, pos: *mut c_f
 /// The 6 joint speeds (rad/s), from the handle twist and the arm's Jacobian.
 ///
 /// # Safety
-/// `vc` is NULL or live; `speed` is NULL or points to 6 writable floats.
+/// `speed` is NULL or points to 6 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetArticularSpeed(vc: *mut c_void, speed: *mut c_float) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -1963,7 +2016,7 @@ pub unsafe extern "C" fn virtGetArticularSpeed(vc: *mut c_void, speed: *mut c_fl
 /// clock by virtStartLoop (see `periodic_loop`).
 ///
 /// # Safety
-/// `vc` is NULL or live; `period` is NULL or readable; `f` stays callable
+/// `period` is NULL or readable; `f` stays callable
 /// and `arg` valid until virtStopLoop/virtClose.
 #[no_mangle]
 pub unsafe extern "C" fn virtSetPeriodicFunction(
@@ -1996,7 +2049,9 @@ pub unsafe extern "C" fn virtSetPeriodicFunction(
 }
 
 struct LoopArgs {
-    ctx: usize,
+    /// The handle the callback receives.
+    handle: usize,
+    ctx: Arc<VirtContextS>,
     f: PeriodicFn,
     arg: usize,
     period: Duration,
@@ -2031,8 +2086,7 @@ fn cycle_reached(a: u32, b: u32) -> bool {
 /// `VIRT_ALARM_CALLBACK_OVERRUN`, counted, and the missed periods skipped.
 /// Without answers (link lost), the function is not called.
 fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
-    // SAFETY: virtClose stops this thread before freeing the context.
-    let c = unsafe { &*(a.ctx as *const VirtContextS) };
+    let c = &a.ctx;
     let (waiter, servo_us) = {
         let vc = c.session();
         (vc.answer_waiter(), vc.link_stats().period_us)
@@ -2057,7 +2111,7 @@ fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
         }
         // SAFETY: f and arg are the application's, valid per
         // virtSetPeriodicFunction's contract.
-        unsafe { (a.f)(a.ctx as *mut c_void, a.arg as *mut c_void) };
+        unsafe { (a.f)(a.handle as *mut c_void, a.arg as *mut c_void) };
         if let Err(e) = c.stream_after_callback() {
             c.last_error.store(e.code, Ordering::SeqCst);
             set_error(&e);
@@ -2080,7 +2134,7 @@ fn periodic_loop(a: LoopArgs, stop: Arc<AtomicBool>) {
 /// Start calling the periodic function.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtStartLoop(vc: *mut c_void) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -2102,7 +2156,8 @@ pub unsafe extern "C" fn virtStartLoop(vc: *mut c_void) -> c_int {
             c.overruns.store(0, Ordering::SeqCst);
             let stop = Arc::new(AtomicBool::new(false));
             let args = LoopArgs {
-                ctx: c as *const VirtContextS as usize,
+                handle: vc as usize,
+                ctx: Arc::clone(c),
                 f,
                 arg,
                 period: Duration::from_secs_f32(p),
@@ -2127,7 +2182,7 @@ pub unsafe extern "C" fn virtStartLoop(vc: *mut c_void) -> c_int {
 /// from the callback itself, which then is the last).
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtStopLoop(vc: *mut c_void) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -2151,7 +2206,7 @@ pub unsafe extern "C" fn virtStopLoop(vc: *mut c_void) -> c_int {
 /// hapticctrl extension: overruns since virtStartLoop.
 ///
 /// # Safety
-/// `vc` is NULL or live; `n` is NULL or writable.
+/// `n` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetCallbackOverruns(vc: *mut c_void, n: *mut c_uint) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -2164,7 +2219,7 @@ pub unsafe extern "C" fn virtGetCallbackOverruns(vc: *mut c_void, n: *mut c_uint
 /// longest recording, s.
 ///
 /// # Safety
-/// `vc` is NULL or live; `record_time` is NULL or writable.
+/// `record_time` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtTrajSetSamplingTimeStep(
     vc: *mut c_void,
@@ -2198,7 +2253,7 @@ pub unsafe extern "C" fn virtTrajSetSamplingTimeStep(
 /// sample, world frame, the answer's servo cycle).
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtTrajRecordStart(vc: *mut c_void) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -2223,11 +2278,11 @@ pub unsafe extern "C" fn virtTrajRecordStart(vc: *mut c_void) -> c_int {
             })?;
             let stop = Arc::new(AtomicBool::new(false));
             let s2 = stop.clone();
-            let ctx_addr = c as *const VirtContextS as usize;
+            let ctx = Arc::clone(c);
             let period = Duration::from_secs_f32(step);
             let h = std::thread::Builder::new()
                 .name("virt_traj".into())
-                .spawn(move || record(ctx_addr, file, period, s2))
+                .spawn(move || record(&ctx, file, period, s2))
                 .map_err(|e| ApiError::new(VIRT_E_OUT_OF_MEMORY, e.to_string()))?;
             let id = h.thread().id();
             *slot = Some(Worker {
@@ -2245,9 +2300,7 @@ pub unsafe extern "C" fn virtTrajRecordStart(vc: *mut c_void) -> c_int {
 /// `period` of servo cycles from the first answer after the start); its
 /// time is the controller's, `(cycle - first cycle) × servo period`.
 /// Without answers, no samples.
-fn record(ctx: usize, file: std::fs::File, period: Duration, stop: Arc<AtomicBool>) {
-    // SAFETY: virtClose / virtTrajRecordStop stop this thread first.
-    let c = unsafe { &*(ctx as *const VirtContextS) };
+fn record(c: &VirtContextS, file: std::fs::File, period: Duration, stop: Arc<AtomicBool>) {
     let mut out = std::io::BufWriter::new(file);
     let (waiter, servo_us) = {
         let vc = c.session();
@@ -2297,7 +2350,7 @@ fn record(ctx: usize, file: std::fs::File, period: Duration, stop: Arc<AtomicBoo
 /// Stop recording and close the file.
 ///
 /// # Safety
-/// `vc` is NULL or a live pointer from `virtOpen`.
+/// None: `vc` may be any value (a handle is looked up, never dereferenced).
 #[no_mangle]
 pub unsafe extern "C" fn virtTrajRecordStop(vc: *mut c_void) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
@@ -2314,6 +2367,16 @@ pub unsafe extern "C" fn virtTrajRecordStop(vc: *mut c_void) -> c_int {
 
 // ---- conversions ----------------------------------------------------------------
 
+/// The conversions need no context: NULL, or an open one; any other value
+/// is a closed or never-opened context.
+fn no_context_or_open(vc: *mut c_void) -> R<()> {
+    if vc.is_null() {
+        Ok(())
+    } else {
+        ctx(vc).map(|_| ())
+    }
+}
+
 /// `d` `float[7]` → `m` `float[16]` row-major homogeneous matrix
 /// (translation in m[3], m[7], m[11]).
 ///
@@ -2321,17 +2384,17 @@ pub unsafe extern "C" fn virtTrajRecordStop(vc: *mut c_void) -> c_int {
 /// `d` is NULL or points to 7 floats; `m` is NULL or to 16 writable floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtConvertDeplToHomogeneMatrix(
-    _vc: *mut c_void,
+    vc: *mut c_void,
     d: *const c_float,
     m: *mut c_float,
 ) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
-    status_of(unsafe {
+    status_of(no_context_or_open(vc).and_then(|_| unsafe {
         read_arr::<7>(d).and_then(|d| {
             finite("displacement", &d)?;
             write_arr(m, kin::pose_to_matrix(&d))
         })
-    })
+    }))
 }
 
 /// `m` `float[16]` row-major homogeneous matrix → `d` `float[7]`.
@@ -2340,17 +2403,17 @@ pub unsafe extern "C" fn virtConvertDeplToHomogeneMatrix(
 /// `d` is NULL or points to 7 writable floats; `m` is NULL or to 16 floats.
 #[no_mangle]
 pub unsafe extern "C" fn virtConvertHomogeneMatrixToDepl(
-    _vc: *mut c_void,
+    vc: *mut c_void,
     d: *mut c_float,
     m: *const c_float,
 ) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
-    status_of(unsafe {
+    status_of(no_context_or_open(vc).and_then(|_| unsafe {
         read_arr::<16>(m).and_then(|m| {
             finite("matrix", &m)?;
             write_arr(d, kin::matrix_to_pose(&m))
         })
-    })
+    }))
 }
 
 /// Luma of an RGB colour: `0.299 r + 0.587 g + 0.114 b`.
@@ -2359,14 +2422,14 @@ pub unsafe extern "C" fn virtConvertHomogeneMatrixToDepl(
 /// `rgb` is NULL or points to 3 floats; `gray` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtConvertRGBToGrayscale(
-    _vc: *mut c_void,
+    vc: *mut c_void,
     rgb: *const c_float,
     gray: *mut c_float,
 ) -> c_int {
     // SAFETY: the pointers are as this function's `# Safety` requires.
-    status_of(unsafe {
+    status_of(no_context_or_open(vc).and_then(|_| unsafe {
         read_arr::<3>(rgb).and_then(|c| put(gray, 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]))
-    })
+    }))
 }
 
 // ---- hapticctrl extension ------------------------------------------------------------
@@ -2375,7 +2438,7 @@ pub unsafe extern "C" fn virtConvertRGBToGrayscale(
 /// Any pointer may be NULL.
 ///
 /// # Safety
-/// `vc` is NULL or live; each pointer is NULL or writable.
+/// Each pointer is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn virtGetLinkStats(
     vc: *mut c_void,
@@ -2407,17 +2470,20 @@ macro_rules! not_implemented {
     ($( $name:ident ( $($arg:ident : $ty:ty),* ) ; )*) => {
         $(
             /// Not implemented by hapticctrl: fails with VIRT_E_NOT_IMPLEMENTED
-            /// (the context's code too, when `vc` is a context).
+            /// (the context's code too, when `vc` is an open context; any other
+            /// non-NULL `vc` is VIRT_E_INVALID_CONTEXT).
             ///
             /// # Safety
-            /// `vc` is NULL or a live pointer from `virtOpen`.
+            /// None: `vc` may be any value (a handle is looked up, never dereferenced).
             #[no_mangle]
             pub unsafe extern "C" fn $name(vc: *mut c_void $(, $arg: $ty)*) -> c_int {
                 $( let _ = $arg; )*
                 let e = ApiError::not_implemented(stringify!($name));
-                // SAFETY: per the contract.
-                if let Some(c) = unsafe { (vc as *const VirtContextS).as_ref() } {
-                    c.last_error.store(e.code, Ordering::SeqCst);
+                match ctx(vc) {
+                    Ok(c) => c.last_error.store(e.code, Ordering::SeqCst),
+                    // A context that is not open: that is the error.
+                    Err(invalid) if !vc.is_null() => return status_of(Err(invalid)),
+                    Err(_) => {}
                 }
                 status_of(Err(e))
             }
@@ -2517,6 +2583,236 @@ mod tests {
             let mut e = -1;
             assert_eq!(virtGetError(std::ptr::null_mut(), &mut e), 0);
             assert_eq!(e, VIRT_E_SYNTAX_ERROR);
+        }
+    }
+
+    fn open_fake() -> (crate::fake_peer::FakePeer, *mut c_void) {
+        let p = crate::fake_peer::FakePeer::start(crate::fake_peer::FakePeerConfig {
+            answer_every_period: true,
+            ..Default::default()
+        })
+        .unwrap();
+        let addr = CString::new(p.address()).unwrap();
+        // SAFETY: a NUL-terminated string.
+        let vc = unsafe { virtOpen(addr.as_ptr()) };
+        assert!(!vc.is_null());
+        (p, vc)
+    }
+
+    /// Every function of the dispatch that takes a context, called on `vc`
+    /// with pointers to a scratch buffer: each must fail with
+    /// VIRT_E_INVALID_CONTEXT (the calling thread's code and the handle's).
+    /// The calls run on another thread; one that does not come back within
+    /// 20 s is a hang (the figure printed is the slowest call).
+    fn every_call_refuses(vc: *mut c_void, what: &str) {
+        let handle = vc as usize;
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut buf = [0f32; 16];
+            let p = buf.as_mut_ptr() as usize;
+            let mut failures = Vec::new();
+            let mut slowest = Duration::ZERO;
+            for f in DllFunction::ALL {
+                use DllFunction::*;
+                if matches!(f, APIVERSION | OPEN | GETERRORMESSAGE) {
+                    continue; // no context
+                }
+                // SETPERIODICFUNCTION's function pointer: NULL (None).
+                let b = if *f == SETPERIODICFUNCTION { 0 } else { p };
+                let t = Instant::now();
+                // SAFETY: every pointer argument points to `buf` (16 floats,
+                // as much as any function reads or writes).
+                let r = unsafe { call_dll(*f as c_uint, [handle, b, p, p, p]) } as isize as c_int;
+                slowest = slowest.max(t.elapsed());
+                let thread_code = LAST.with(|l| l.borrow().0);
+                // SAFETY: any handle value may be passed.
+                let code = unsafe { virtGetErrorCode(handle as *mut c_void) };
+                let expect = if *f == GETERRORCODE {
+                    VIRT_E_INVALID_CONTEXT
+                } else {
+                    -1
+                };
+                if r != expect
+                    || (*f != GETERRORCODE && thread_code != VIRT_E_INVALID_CONTEXT)
+                    || code != VIRT_E_INVALID_CONTEXT
+                {
+                    failures.push(format!(
+                        "{}: {r} (thread {thread_code}, handle {code})",
+                        f.name()
+                    ));
+                }
+            }
+            let _ = tx.send((failures, slowest));
+        });
+        let (failures, slowest) = rx
+            .recv_timeout(Duration::from_secs(20))
+            .unwrap_or_else(|_| panic!("{what}: a call did not return within 20 s"));
+        println!("{what}: slowest refused call {slowest:?}");
+        assert!(failures.is_empty(), "{what}: {failures:#?}");
+    }
+
+    #[test]
+    fn calls_on_a_closed_or_never_opened_context_fail_at_once() {
+        let (_p, vc) = open_fake();
+        // SAFETY: vc is the handle virtOpen returned.
+        unsafe {
+            let mut pos = [0f32; 7];
+            assert_eq!(virtGetPosition(vc, pos.as_mut_ptr()), 0);
+            assert_eq!(virtClose(vc), 0);
+            // A second close is refused, not a double free.
+            assert_eq!(virtClose(vc), -1);
+            assert_eq!(
+                virtGetErrorCode(std::ptr::null_mut()),
+                VIRT_E_INVALID_CONTEXT
+            );
+            let mut e = 0;
+            assert_eq!(virtGetError(vc, &mut e), -1);
+            assert_eq!(e, VIRT_E_INVALID_CONTEXT);
+            // The conversions need no context, but not a closed one.
+            let mut m = [0f32; 16];
+            assert_eq!(
+                virtConvertDeplToHomogeneMatrix(vc, pos.as_ptr(), m.as_mut_ptr()),
+                -1
+            );
+        }
+        every_call_refuses(vc, "closed");
+        // Values virtOpen never returned: an address, a small number, the
+        // handle before the first one.
+        let mut local = [0u8; 64];
+        every_call_refuses(local.as_mut_ptr() as *mut c_void, "an address");
+        every_call_refuses(7 as *mut c_void, "7");
+        every_call_refuses((HANDLE_BASE - 1) as *mut c_void, "below the first handle");
+    }
+
+    #[test]
+    fn handles_are_never_reused_and_fit_an_int() {
+        let (_p, a) = open_fake();
+        // SAFETY: handles from virtOpen.
+        unsafe {
+            assert_eq!(virtClose(a), 0);
+            let (_q, b) = open_fake();
+            assert_ne!(a, b, "a closed handle came back");
+            assert!((b as usize) <= i32::MAX as usize);
+            let mut t = 0f32;
+            assert_eq!(virtGetTimeStep(a, &mut t), -1);
+            assert_eq!(virtGetTimeStep(b, &mut t), 0);
+            assert_eq!(virtClose(b), 0);
+        }
+    }
+
+    #[test]
+    fn call_dll_dispatches_as_haptions_older_headers_call() {
+        use DllFunction::*;
+        assert_eq!(DllFunction::ALL.len(), 129);
+        for (i, f) in DllFunction::ALL.iter().enumerate() {
+            assert_eq!(*f as usize, i);
+            assert_eq!(DllFunction::from_u32(i as u32), Some(*f));
+        }
+        // Positions that fix the numbering (first, middle, last).
+        assert_eq!(OPEN as u32, 28);
+        assert_eq!(DEVICEID as u32, 121);
+        assert_eq!(GETSIMULATIONDAMPING as u32, 128);
+        let p = crate::fake_peer::FakePeer::start(crate::fake_peer::FakePeerConfig {
+            answer_every_period: true,
+            ..Default::default()
+        })
+        .unwrap();
+        let addr = CString::new(p.address()).unwrap();
+        let i = |r: usize| r as isize as c_int;
+        // SAFETY: the arguments are what each wrapper passes: the context,
+        // pointers, and scalars by address.
+        unsafe {
+            let vc = call_dll(OPEN as c_uint, [addr.as_ptr() as usize, 0, 0, 0, 0]);
+            assert_ne!(vc, 0);
+            let (mut maj, mut min) = (0, 0);
+            let r = call_dll(
+                APIVERSION as c_uint,
+                [
+                    &mut maj as *mut c_int as usize,
+                    &mut min as *mut c_int as usize,
+                    0,
+                    0,
+                    0,
+                ],
+            );
+            assert_eq!((i(r), maj, min), (0, 4, 4));
+            let step = 0.004f32;
+            let r = call_dll(
+                SETTIMESTEP as c_uint,
+                [vc, &step as *const f32 as usize, 0, 0, 0],
+            );
+            assert_eq!(i(r), 0);
+            let mut got = 0f32;
+            let r = call_dll(
+                GETTIMESTEP as c_uint,
+                [vc, &mut got as *mut f32 as usize, 0, 0, 0],
+            );
+            assert_eq!((i(r), got), (0, 0.004));
+            let ty = COMMAND_TYPE_IMPEDANCE;
+            let r = call_dll(
+                SETCOMMANDTYPE as c_uint,
+                [vc, &ty as *const c_int as usize, 0, 0, 0],
+            );
+            assert_eq!(i(r), 0);
+            let mut t = 0;
+            let r = call_dll(
+                GETCOMMANDTYPE as c_uint,
+                [vc, &mut t as *mut c_int as usize, 0, 0, 0],
+            );
+            assert_eq!((i(r), t), (0, COMMAND_TYPE_IMPEDANCE));
+            let mut pos = [0f32; 7];
+            let r = call_dll(
+                GETPOSITION as c_uint,
+                [vc, pos.as_mut_ptr() as usize, 0, 0, 0],
+            );
+            assert_eq!(i(r), 0);
+            assert!(
+                (pos[3] * pos[3] + pos[4] * pos[4] + pos[5] * pos[5] + pos[6] * pos[6] - 1.0).abs()
+                    < 1e-3
+            );
+            // A refused value: -1 through the uintptr_t, the code on the context.
+            let bad = -1.0f32;
+            let r = call_dll(
+                SETTIMESTEP as c_uint,
+                [vc, &bad as *const f32 as usize, 0, 0, 0],
+            );
+            assert_eq!(r, usize::MAX);
+            assert_eq!(
+                i(call_dll(GETERRORCODE as c_uint, [vc, 0, 0, 0, 0])),
+                VIRT_E_INCORRECT_VALUE
+            );
+            let code = VIRT_E_INCORRECT_VALUE;
+            let msg = call_dll(
+                GETERRORMESSAGE as c_uint,
+                [&code as *const c_int as usize, 0, 0, 0, 0],
+            );
+            assert!(!CStr::from_ptr(msg as *const c_char)
+                .to_str()
+                .unwrap()
+                .is_empty());
+            // A scalar passed by a NULL address: an error, not a crash.
+            assert_eq!(
+                call_dll(SETTIMESTEP as c_uint, [vc, 0, 0, 0, 0]),
+                usize::MAX
+            );
+            assert_eq!(
+                i(call_dll(GETERRORCODE as c_uint, [vc, 0, 0, 0, 0])),
+                VIRT_E_INCORRECT_VALUE
+            );
+            // Numbered, without a wrapper: not implemented.
+            assert_eq!(call_dll(FRICTION as c_uint, [vc, 0, 0, 0, 0]), usize::MAX);
+            assert_eq!(
+                i(call_dll(GETERRORCODE as c_uint, [vc, 0, 0, 0, 0])),
+                VIRT_E_NOT_IMPLEMENTED
+            );
+            // A number no header has.
+            assert_eq!(call_dll(129, [vc, 0, 0, 0, 0]), usize::MAX);
+            assert_eq!(
+                i(call_dll(GETERRORCODE as c_uint, [vc, 0, 0, 0, 0])),
+                VIRT_E_INCORRECT_VALUE
+            );
+            assert_eq!(i(call_dll(CLOSE as c_uint, [vc, 0, 0, 0, 0])), 0);
+            assert_eq!(call_dll(CLOSE as c_uint, [vc, 0, 0, 0, 0]), usize::MAX);
         }
     }
 
