@@ -49,7 +49,7 @@ fn main() {
         black_box(decode(black_box(&b[..len])).is_ok());
     });
     // v2: a gate with a session (kernel session 1).
-    let mut gate = Gate::new(Psk::test_key(), [7; 32]);
+    let mut gate = Gate::new(Psk::test_key(), &[7; 32]);
     let mut c = ClientAuth::new(Psk::test_key());
     let src = std::net::SocketAddr::from(([127, 0, 0, 1], 4000));
     let now = std::time::Duration::from_secs(10);

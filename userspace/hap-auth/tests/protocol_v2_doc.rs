@@ -222,7 +222,7 @@ fn vectors() -> Vec<(String, &'static str, Wire)> {
     ));
     // The session-end notice as the gate makes it: after the handshake
     // (newest accepted seq 2, the open_proof's), the session expires.
-    let mut gate = Gate::new(psk.clone(), secret());
+    let mut gate = Gate::new(psk.clone(), &secret());
     let hello = gate.inspect(v[0].2.bytes(), client_addr(), NOW).unwrap();
     assert_eq!(gate.commit(&hello, NOW), Action::Challenge(v[1].2));
     let proof = gate.inspect(v[2].2.bytes(), client_addr(), NOW).unwrap();
@@ -351,7 +351,7 @@ fn vectors_verify_on_both_sides() {
     );
     // The client's requests are the vectors, byte for byte, and the bridge
     // accepts them (a gate at the vectors' secret, address and time).
-    let mut gate = Gate::new(Psk::test_key(), secret());
+    let mut gate = Gate::new(Psk::test_key(), &secret());
     let hello = gate.inspect(w(0).bytes(), client_addr(), NOW).unwrap();
     gate.commit(&hello, NOW);
     let proof = gate.inspect(w(2).bytes(), client_addr(), NOW).unwrap();

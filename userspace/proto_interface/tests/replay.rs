@@ -136,7 +136,14 @@ impl Bridge {
             // Loopback: every source shares 127.0.0.1, so the per-IP budget
             // would soon drop the replays unexamined; they are to be examined
             // (and refused) one by one here. The budgets have their own test.
-            .args(["--refusal-budget", "0", "--handshake-budget", "0"])
+            .args([
+                "--refusal-budget",
+                "0",
+                "--handshake-budget",
+                "0",
+                "--handshake-budget-per-ip",
+                "0",
+            ])
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
@@ -528,14 +535,16 @@ fn replayed_sessions_reach_nothing_disturb_nothing_and_amplify_nothing() {
             seq,
             timestamp_us: seq,
         };
-        s.send(c.hello(&h(1), nc).bytes()).unwrap();
+        // One client numbering on: each proof newer than the last (a proof
+        // from the live session's client commits only forward).
+        s.send(c.hello(&h(2 * k + 1), nc).bytes()).unwrap();
         loop {
             let n = s.recv(&mut buf).expect("cookie");
             if let Ok((_, Reply::Cookie)) = c.open(&buf[..n]) {
                 break;
             }
         }
-        s.send(c.prove(&h(2)).unwrap().bytes()).unwrap();
+        s.send(c.prove(&h(2 * k + 2)).unwrap().bytes()).unwrap();
         loop {
             let n = s.recv(&mut buf).expect("session_ack");
             match c.open(&buf[..n]) {

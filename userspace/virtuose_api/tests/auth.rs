@@ -191,17 +191,33 @@ fn a_session_the_bridge_ends_is_reported_and_closed_in_proto_in() {
     // notice names the newest request the bridge accepted).
     let e = vc.set_command_type(CommandType::Impedance).unwrap_err();
     assert!(
-        matches!(&e, VirtError::Refused { reason: 0x103, name, .. } if name.contains("expired")),
+        matches!(&e, VirtError::SessionEnded { reason: 0x103, name } if name.contains("expired")),
         "{e:?}"
     );
+    assert!(e.to_string().contains("(0x103)"), "{e}");
     let deadline = std::time::Instant::now() + Duration::from_secs(2);
     while vc.session_ended().is_none() && std::time::Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(10));
     }
     assert_eq!(vc.session_ended(), Some(hap_auth::ERROR_EXPIRED));
+    // The peer tells the client first, then closes PROTO_IN's session.
+    while p.kernel.lock().unwrap().session() != 0 && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(10));
+    }
     assert_eq!(p.kernel.lock().unwrap().session(), 0, "PROTO_IN closed it");
-    assert!(matches!(
+    // Every call but close now fails with the reason: set-points,
+    // requests and readings (the last answer is not the arm's any more).
+    for r in [
         vc.set_position(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
-        Err(VirtError::Closed)
-    ));
+        vc.set_power_on(true),
+        vc.get_position().map(|_| ()),
+        vc.check_session(),
+    ] {
+        assert!(
+            matches!(&r, Err(VirtError::SessionEnded { reason: 0x103, .. })),
+            "{r:?}"
+        );
+    }
+    let mut vc = vc;
+    assert_eq!(vc.close(), Ok(()), "nothing to close");
 }
