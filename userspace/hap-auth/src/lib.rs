@@ -235,7 +235,7 @@ impl Psk {
 
     /// 64 lowercase hex digits.
     pub fn to_hex(&self) -> String {
-        hex(&self.0)
+        hex(self.0.as_slice())
     }
 
     /// Refuse keys that are not random: all zero, the published test key,

@@ -402,9 +402,8 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
         // HMAC, but for the session's client and for handshake frames (at
         // most one HMAC each: a key holder behind the flooder's IP still
         // opens). Every drop is charged to the source's IP.
-        if !limit.allow(src, session.client(), now)
-            && !(shared.gate.is_some() && hap_auth::is_handshake(data))
-        {
+        let examined_anyway = shared.gate.is_some() && hap_auth::is_handshake(data);
+        if !examined_anyway && !limit.allow(src, session.client(), now) {
             shared.counters.refuse(Refusal::RateLimited);
             limit.charge(src, now);
             continue;
