@@ -235,7 +235,7 @@ impl Psk {
 
     /// 64 lowercase hex digits.
     pub fn to_hex(&self) -> String {
-        hex(self.0.as_slice())
+        hex(&self.0)
     }
 
     /// Refuse keys that are not random: all zero, the published test key,
@@ -394,8 +394,8 @@ impl Psk {
 }
 
 /// Lowercase hex of `b`.
-pub fn hex(b: impl AsRef<[u8]>) -> String {
-    b.as_ref().iter().map(|x| format!("{x:02x}")).collect()
+pub fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
 /// Fill `out` from the kernel's CSPRNG (`/dev/urandom`).

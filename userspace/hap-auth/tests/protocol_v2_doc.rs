@@ -280,12 +280,12 @@ fn generated() -> String {
         ("epoch (100 s / 5 s)", hex(&epoch.to_be_bytes())),
         ("Nc", hex(&NC)),
         ("Ns", hex(&ns)),
-        ("K_open", hex(&open_key(&psk))),
-        ("K_cookie", hex(&cookie_key(&psk, &NC))),
-        ("K_proof", hex(&proof_key(&psk))),
+        ("K_open", hex(&open_key(&psk)[..])),
+        ("K_cookie", hex(&cookie_key(&psk, &NC)[..])),
+        ("K_proof", hex(&proof_key(&psk)[..])),
         ("K_c2s", hex(&keys.c2s)),
         ("K_s2c", hex(&keys.s2c)),
-        ("K_refuse", hex(&refuse_key(&psk, &NC))),
+        ("K_refuse", hex(&refuse_key(&psk, &NC)[..])),
     ] {
         writeln!(s, "| {n} | `{v}` |").unwrap();
     }
