@@ -116,9 +116,11 @@ fn main() {
     let hello_replayed = per_frame(n, |_| {
         black_box(gate.inspect(black_box(open.bytes()), other, now).is_err());
     });
+    let mut fresh = 0u32;
     let cookie = per_frame(n, |k| {
+        fresh += 1;
         let mut nc = [3u8; NONCE_LEN];
-        nc[..4].copy_from_slice(&k.to_be_bytes());
+        nc[..4].copy_from_slice(&fresh.to_be_bytes());
         let o = seal_open(&Psk::test_key(), &FrameHeader { session: 0, ..h(k) }, &nc);
         let i = gate.inspect(black_box(o.bytes()), src, now).unwrap();
         black_box(gate.commit(&i, now));

@@ -73,12 +73,12 @@ pub const COOKIE_EPOCH_S: u64 = 5;
 pub const PROOF_MEMORY: usize = 16384;
 /// How long the bridge remembers the client nonce (`Nc`) of every
 /// `open_session` it answered with a cookie, seconds: a copy of that
-/// `open_session` from any other address draws nothing in that time
-/// (`hello_replay`); from its own address it is answered again (a
-/// retransmission).
-pub const HELLO_MEMORY_S: u64 = 60;
+/// `open_session`, from any address, draws nothing in that time
+/// (`hello_replay`). A client whose cookie went missing starts a new
+/// attempt with a new nonce.
+pub const HELLO_MEMORY_S: u64 = 600;
 /// Answered `open_session` nonces the bridge remembers at most (about
-/// 1.5 MB when full; beyond, the oldest is forgotten first).
+/// 1 MB when full; beyond, the oldest is forgotten first).
 pub const HELLO_MEMORY: usize = 16384;
 /// The sequence span one direction of a session may cover: half the
 /// sequence-number space, so that serial-number comparison stays
@@ -620,8 +620,8 @@ pub enum Refusal {
     /// not newer (serial order) than the `open_proof` that opened that
     /// session: an abandoned, held-back or late attempt of the same client.
     StaleProof,
-    /// A verified `open_session` whose nonce the bridge already answered,
-    /// from another address (a recorded one, replayed).
+    /// A verified `open_session` whose nonce the bridge already answered
+    /// (a recorded one, replayed, from any address).
     HelloReplay,
     /// A verified `open_session` beyond its source IP's handshake budget.
     HandshakeIpBudget,
@@ -1144,25 +1144,24 @@ struct SeenProof {
 }
 
 /// The `open_session` nonces answered with a cookie in the last
-/// [`HELLO_MEMORY_S`] seconds (at most [`HELLO_MEMORY`]), and the address
-/// each was answered to.
+/// [`HELLO_MEMORY_S`] seconds (at most [`HELLO_MEMORY`]).
 #[derive(Debug, Default)]
 struct HelloMemory {
-    by_nonce: std::collections::HashMap<[u8; NONCE_LEN], (SocketAddr, u64)>,
+    /// Nonce → the second it was answered.
+    by_nonce: std::collections::HashMap<[u8; NONCE_LEN], u64>,
     /// (nonce, second answered), oldest first.
     order: std::collections::VecDeque<([u8; NONCE_LEN], u64)>,
 }
 
 impl HelloMemory {
-    /// The address `nc` was answered to, if it is remembered at `now_s`.
-    fn answered_to(&self, nc: &[u8; NONCE_LEN], now_s: u64) -> Option<SocketAddr> {
+    /// Was `nc` answered in the last [`HELLO_MEMORY_S`] before `now_s`?
+    fn answered(&self, nc: &[u8; NONCE_LEN], now_s: u64) -> bool {
         self.by_nonce
             .get(nc)
-            .filter(|(_, t)| now_s.saturating_sub(*t) < HELLO_MEMORY_S)
-            .map(|(a, _)| *a)
+            .is_some_and(|t| now_s.saturating_sub(*t) < HELLO_MEMORY_S)
     }
 
-    fn remember(&mut self, nc: [u8; NONCE_LEN], src: SocketAddr, now_s: u64) {
+    fn remember(&mut self, nc: [u8; NONCE_LEN], now_s: u64) {
         while let Some((old, t)) = self.order.front().copied() {
             let dead = now_s.saturating_sub(t) >= HELLO_MEMORY_S;
             if !dead && self.order.len() < HELLO_MEMORY {
@@ -1171,13 +1170,12 @@ impl HelloMemory {
             self.order.pop_front();
             // The nonce may have been answered again since (its entry then
             // carries a later time): forget only this answer.
-            if self.by_nonce.get(&old).is_some_and(|(_, t2)| *t2 == t) {
+            if self.by_nonce.get(&old) == Some(&t) {
                 self.by_nonce.remove(&old);
             }
         }
-        if self.by_nonce.insert(nc, (src, now_s)) != Some((src, now_s)) {
-            self.order.push_back((nc, now_s));
-        }
+        self.by_nonce.insert(nc, now_s);
+        self.order.push_back((nc, now_s));
     }
 
     fn len(&self) -> usize {
@@ -1390,14 +1388,9 @@ impl Gate {
                 return Err(Refusal::BadTag);
             }
             i.nc = nonce_at(b, HEADER_LEN);
-            // A recorded open_session replayed from another address draws
-            // nothing while its nonce is remembered; from the address it
-            // was answered to, it is a retransmission (the same cookie).
-            if self
-                .hellos
-                .answered_to(&i.nc, now.as_secs())
-                .is_some_and(|a| a != src)
-            {
+            // A recorded open_session, replayed from any address, draws
+            // nothing while its nonce is remembered.
+            if self.hellos.answered(&i.nc, now.as_secs()) {
                 return Err(Refusal::HelloReplay);
             }
             i.epoch = epoch_of(now);
@@ -1517,7 +1510,7 @@ impl Gate {
         match i.kind {
             Kind::Hello => {
                 let ns = cookie_nonce_with(&self.secret_mac, i.epoch, &i.src, &i.nc);
-                self.hellos.remember(i.nc, i.src, now.as_secs());
+                self.hellos.remember(i.nc, now.as_secs());
                 self.counters.cookies = self.counters.cookies.saturating_add(1);
                 let key = prf(&self.psk_mac, &[LABEL_COOKIE, &i.nc]);
                 return Action::Challenge(seal_proof_frame(

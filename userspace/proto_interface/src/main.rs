@@ -72,7 +72,7 @@ struct Args {
     handshake_budget: u32,
     /// Cookies per second and source IP (all its ports together), bursts
     /// of twice that (0: no limit); beyond, `rejected_handshake_ip_budget`.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 100)]
     handshake_budget_per_ip: u32,
     /// With --rt-priority: the share of one CPU, in percent, the receiving
     /// thread may use at that priority over a 100 ms window; a window above
