@@ -784,3 +784,86 @@ fn an_authenticated_malformed_request_is_told_why() {
     assert_eq!(rig.forwarded.len(), 1);
     assert_eq!(rig.refused[&Refusal::Malformed], 1);
 }
+
+/// The control word: a reserved bit (3–15) on a verified request is
+/// answered `error` 7 `bad_flags` and not forwarded; on the handshake
+/// frames the control word has no meaning: whatever it holds, the
+/// handshake goes through and the kernel's `open_session` carries 0.
+#[test]
+fn control_bits_on_requests_and_on_the_handshake() {
+    let mut rig = Rig::new(Psk::test_key());
+    let mut c = ClientAuth::new(Psk::test_key());
+    let open = c.hello(&hdr(1, 0, 0xffff), [0x45; NONCE_LEN]);
+    let cookie = rig.datagram(open.bytes()).unwrap().expect("cookie");
+    assert_eq!(c.open(cookie.bytes()).unwrap().1, Reply::Cookie);
+    let proof = c.prove(&hdr(2, 0, 0xffff)).unwrap();
+    let i = rig.gate.inspect(proof.bytes(), rig.src, rig.now).unwrap();
+    let Action::Forward(v1) = rig.gate.commit(&i, rig.now) else {
+        panic!("not committed")
+    };
+    let (h, f) = hap_core::protocol::decode(v1.bytes()).unwrap();
+    assert_eq!((h.control, h.seq), (0, 2));
+    assert!(matches!(f, Frame::OpenSession { .. }));
+    let ack = rig.kernel_frame(v1.bytes()).unwrap().unwrap();
+    let (hd, _) = c.open(ack.bytes()).unwrap();
+    let s = hd.session;
+    // A reserved bit on a request: told why, nothing forwarded.
+    let n = rig.forwarded.len();
+    let w = c.seal(&hdr(3, s, 1 << 5), &vpr(1)).unwrap();
+    let reply = rig.datagram(w.bytes()).unwrap().unwrap();
+    assert_eq!(
+        c.open(reply.bytes()).unwrap().1,
+        Reply::Frame(Frame::Error {
+            reason: hap_core::protocol::DecodeError::BadFlags.reason_index() as u32,
+            rejected_seq: 3
+        })
+    );
+    assert_eq!(rig.forwarded.len(), n);
+    // Bits 0–2 are defined: CTRL_LINK_ENERGY (bit 2) on a vpr_stream passes.
+    let w = c
+        .seal(&hdr(4, s, hap_core::protocol::CTRL_LINK_ENERGY), &vpr(1))
+        .unwrap();
+    assert_eq!(rig.datagram(w.bytes()), Ok(None));
+    assert_eq!(rig.forwarded.len(), n + 1);
+}
+
+/// What a client checks in a `cookie`: its length and type, that it
+/// echoes the client's Nc, and its tag under K_cookie(Nc). The header's
+/// other fields (the bridge sends 0) and the epoch are covered by the tag
+/// and not checked against a value; Ns and the epoch go into the proof as
+/// they came.
+#[test]
+fn what_a_client_checks_in_a_cookie() {
+    let psk = Psk::test_key();
+    let nc = [0x46; NONCE_LEN];
+    let ns = [0x47; NONCE_LEN];
+    let odd = FrameHeader {
+        control: 3,
+        session: 9,
+        seq: 77,
+        timestamp_us: 5,
+    };
+    let mut c = ClientAuth::new(psk.clone());
+    c.hello(&hdr(1, 0, 0), nc);
+    // Another nonce echoed, or a tag under another key: ignored.
+    assert_eq!(
+        c.open(seal_cookie(&psk, &odd, &[0x48; NONCE_LEN], &ns, 3).bytes()),
+        Err(Refusal::BadTag)
+    );
+    assert_eq!(
+        c.open(seal_cookie(&other_key(), &odd, &nc, &ns, 3).bytes()),
+        Err(Refusal::BadTag)
+    );
+    let mut short = seal_cookie(&psk, &odd, &nc, &ns, 3);
+    short.len -= 1;
+    assert_eq!(c.open(short.bytes()), Err(Refusal::LengthMismatch));
+    // Other header values, another epoch: taken, as they are.
+    assert_eq!(
+        c.open(seal_cookie(&psk, &odd, &nc, &ns, 0xdead).bytes())
+            .unwrap()
+            .1,
+        Reply::Cookie
+    );
+    let p = c.prove(&hdr(2, 0, 0)).unwrap();
+    assert_eq!(p, seal_open_proof(&psk, &hdr(2, 0, 0), &nc, &ns, 0xdead));
+}
