@@ -174,6 +174,18 @@ impl Bridge {
         let _ = self.child.wait();
     }
 
+    /// Every counter, from one rewrite of the stats file.
+    fn stats(&self, dir: &Path) -> std::collections::HashMap<String, u64> {
+        // SAFETY: kill(2) on our child: rewrite the stats file now.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGUSR1) };
+        std::thread::sleep(Duration::from_millis(150));
+        let s = std::fs::read_to_string(dir.join("stats")).unwrap_or_default();
+        s.lines()
+            .filter_map(|l| l.split_once(": "))
+            .filter_map(|(k, v)| Some((k.to_string(), v.trim().parse().ok()?)))
+            .collect()
+    }
+
     fn stat(&self, dir: &Path, key: &str) -> u64 {
         // SAFETY: kill(2) on our child: rewrite the stats file now.
         unsafe { libc::kill(self.child.id() as i32, libc::SIGUSR1) };
@@ -1064,6 +1076,21 @@ fn flood_run(
     for f in &failures {
         println!("{name}: {f}");
     }
+    // Every datagram the bridge read is accounted for (the flood over, the
+    // sessions closed: a stable count).
+    std::thread::sleep(Duration::from_millis(200));
+    let all = bridge.stats(&dir);
+    let get = |k: &str| all.get(k).copied().unwrap_or_else(|| panic!("no {k}"));
+    assert_eq!(get("write_errors") + get("send_errors"), 0);
+    assert_eq!(
+        get("received"),
+        get("forwarded")
+            + get("rejected")
+            + get("retransmits_reacked")
+            + get("proofs_reacked")
+            + get("cookies_sent"),
+        "{all:?}"
+    );
     // Each open that succeeded opened exactly one kernel session (a round
     // that sent the proof again opened none).
     assert_eq!(
