@@ -1759,8 +1759,10 @@ pub enum Reply {
 #[derive(Clone, Debug)]
 enum ClientState {
     Idle,
-    /// `open_session` sent with this nonce.
-    Hello([u8; NONCE_LEN]),
+    /// `open_session`s sent with these nonces (the newest last, at most
+    /// [`HELLOS_PENDING`]): the first cookie to come for any of them is
+    /// proved, the others are then ignored.
+    Hello(Vec<[u8; NONCE_LEN]>),
     /// `cookie` received; `open_proof` to send, or sent (then kept, to be
     /// sent again as it is until the `session_ack` comes: a new attempt
     /// would leave this proof valid at the bridge for its cookie's life).
@@ -1771,6 +1773,11 @@ enum ClientState {
         proof: Option<Wire>,
     },
 }
+
+/// `open_session`s of one open whose cookie the client still takes (a
+/// bridge slow to answer the first one is not left unheard when the client
+/// sends another).
+pub const HELLOS_PENDING: usize = 8;
 
 /// The client's side: the PSK, the pending handshake and the session keys.
 #[derive(Clone, Debug)]
@@ -1805,10 +1812,19 @@ impl ClientAuth {
         self.span_limit = span.clamp(1, SESSION_SEQ_SPAN);
     }
 
-    /// Start a handshake with the nonce `nc` (fresh for every attempt).
-    /// Returns the `open_session`.
+    /// Send an `open_session` with the nonce `nc` (fresh for every
+    /// attempt). Returns it. While no cookie came, the cookie of an earlier
+    /// `open_session` (one of the last [`HELLOS_PENDING`]) is still taken.
     pub fn hello(&mut self, h: &FrameHeader, nc: [u8; NONCE_LEN]) -> Wire {
-        self.pending = ClientState::Hello(nc);
+        match &mut self.pending {
+            ClientState::Hello(ncs) => {
+                if ncs.len() >= HELLOS_PENDING {
+                    ncs.remove(0);
+                }
+                ncs.push(nc);
+            }
+            _ => self.pending = ClientState::Hello(vec![nc]),
+        }
         let h = FrameHeader { session: 0, ..*h };
         seal_open(&self.psk, &h, &nc)
     }
@@ -1895,12 +1911,14 @@ impl ClientAuth {
         let ty = match wt {
             WireType::OpenProof => return Err(Refusal::NotARequest),
             WireType::Cookie => {
-                let ClientState::Hello(nc) = self.pending else {
+                let ClientState::Hello(ncs) = &self.pending else {
                     return Err(Refusal::NoSession);
                 };
-                if nonce_at(b, HEADER_LEN) != nc
-                    || !verify(&keyed(&cookie_key(&self.psk, &nc)[..]), b, TAG_LEN)
-                {
+                let echoed = nonce_at(b, HEADER_LEN);
+                let Some(nc) = ncs.iter().copied().find(|n| same_nonce(n, &echoed)) else {
+                    return Err(Refusal::BadTag);
+                };
+                if !verify(&keyed(&cookie_key(&self.psk, &nc)[..]), b, TAG_LEN) {
                     return Err(Refusal::BadTag);
                 }
                 self.pending = ClientState::Proving {
@@ -1918,9 +1936,10 @@ impl ClientAuth {
         }
         let tl = tag_len(ty);
         if ty == FrameType::SessionAck {
-            let ClientState::Proving { nc, ns, proof, .. } = self.pending else {
+            let ClientState::Proving { nc, ns, proof, .. } = &self.pending else {
                 return Err(Refusal::NoSession);
             };
+            let (nc, ns, proof) = (*nc, *ns, *proof);
             if nonce_at(b, HEADER_LEN) != nc || nonce_at(b, HEADER_LEN + NONCE_LEN) != ns {
                 return Err(Refusal::BadTag);
             }
@@ -1939,11 +1958,12 @@ impl ClientAuth {
             return Ok((h, Reply::SessionAck { period_us }));
         }
         if ty == FrameType::Error && h.session == 0 {
-            let nc = match &self.pending {
-                ClientState::Hello(nc) | ClientState::Proving { nc, .. } => Some(*nc),
-                ClientState::Idle => None,
+            let ncs: Vec<[u8; NONCE_LEN]> = match &self.pending {
+                ClientState::Hello(ncs) => ncs.clone(),
+                ClientState::Proving { nc, .. } => vec![*nc],
+                ClientState::Idle => Vec::new(),
             };
-            if let Some(nc) = nc {
+            for nc in ncs {
                 if verify(&keyed(&refuse_key(&self.psk, &nc)[..]), b, tl) {
                     return Ok((
                         h,

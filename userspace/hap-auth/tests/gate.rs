@@ -867,3 +867,37 @@ fn what_a_client_checks_in_a_cookie() {
     let p = c.prove(&hdr(2, 0, 0)).unwrap();
     assert_eq!(p, seal_open_proof(&psk, &hdr(2, 0, 0), &nc, &ns, 0xdead));
 }
+
+/// A client that sent a second `open_session` (no cookie came in time)
+/// still takes the first one's cookie if it comes first; it proves one
+/// cookie only, and ignores the other.
+#[test]
+fn the_first_cookie_to_come_is_proved_and_only_it() {
+    let mut rig = Rig::new(Psk::test_key());
+    let mut c = ClientAuth::new(Psk::test_key());
+    let open1 = c.hello(&hdr(1, 0, 0), [0x49; NONCE_LEN]);
+    let open2 = c.hello(&hdr(2, 0, 0), [0x4a; NONCE_LEN]);
+    let cookie2 = rig.datagram(open2.bytes()).unwrap().unwrap();
+    let cookie1 = rig.datagram(open1.bytes()).unwrap().unwrap();
+    assert_eq!(c.open(cookie1.bytes()).unwrap().1, Reply::Cookie);
+    assert_eq!(c.open(cookie2.bytes()), Err(Refusal::NoSession));
+    let proof = c.prove(&hdr(3, 0, 0)).unwrap();
+    assert_eq!(
+        &proof.buf[HEADER_LEN..HEADER_LEN + NONCE_LEN],
+        &[0x49; NONCE_LEN]
+    );
+    let ack = rig.datagram(proof.bytes()).unwrap().unwrap();
+    assert!(matches!(
+        c.open(ack.bytes()).unwrap().1,
+        Reply::SessionAck { .. }
+    ));
+    // Only the last HELLOS_PENDING nonces are heard.
+    let mut d = ClientAuth::new(Psk::test_key());
+    let first = d.hello(&hdr(10, 0, 0), [0x4b; NONCE_LEN]);
+    for k in 0..HELLOS_PENDING as u8 {
+        d.hello(&hdr(11 + u32::from(k), 0, 0), [0x50 + k; NONCE_LEN]);
+    }
+    rig.src = SocketAddr::from(([192, 0, 2, 1], 40005));
+    let cookie = rig.datagram(first.bytes()).unwrap().unwrap();
+    assert_eq!(d.open(cookie.bytes()), Err(Refusal::BadTag));
+}
