@@ -113,6 +113,11 @@ fn nan_time_step(keys: &SessionKeys) -> Wire {
 /// the requests 3 … 13, the kernel's frames 500 … 503), and the frames it
 /// made or sealed on the way, in order.
 fn main_line(c: &mut ClientAuth) -> (Gate, Vec<(String, &'static str, Wire)>) {
+    main_line_to(c, 13)
+}
+
+/// [`main_line`] up to the client's request `last` (12 or 13).
+fn main_line_to(c: &mut ClientAuth, last: u32) -> (Gate, Vec<(String, &'static str, Wire)>) {
     let psk = Psk::test_key();
     let (pose, twist, wrench) = samples();
     let mut gate = Gate::new(psk.clone(), &secret());
@@ -259,6 +264,9 @@ fn main_line(c: &mut ClientAuth) -> (Gate, Vec<(String, &'static str, Wire)>) {
         ))
         .unwrap(),
     ));
+    if last < 13 {
+        return (gate, v);
+    }
     // A verified request that does not decode: the bridge answers it.
     let keys = c.keys().unwrap().clone();
     let nan = nan_time_step(&keys);
@@ -287,6 +295,58 @@ fn vectors() -> Vec<(String, &'static str, Wire)> {
     let mut c = ClientAuth::new(psk.clone());
     let (_, mut v) = main_line(&mut c);
     let keys = c.keys().unwrap().clone();
+    // The other refusals a verified request can draw, each instead of
+    // request 13: a reserved control bit, a value out of range, an unknown
+    // enum value, a bool other than 0 or 1.
+    for (what, ty, control, payload) in [
+        (
+            "a reserved control bit (bit 5)",
+            FrameType::SetTimeStep,
+            1u16 << 5,
+            [0x3a, 0x80, 0x00, 0x00],
+        ),
+        (
+            "2 s (out of range)",
+            FrameType::SetTimeStep,
+            0,
+            [0x40, 0x00, 0x00, 0x00],
+        ),
+        (
+            "command type 7 (unknown)",
+            FrameType::SetCommandType,
+            0,
+            [0, 0, 0, 7],
+        ),
+        ("the bool 2", FrameType::PowerRequest, 0, [0, 0, 0, 2]),
+    ] {
+        let (mut gate, _) = main_line_to(&mut ClientAuth::new(psk.clone()), 12);
+        let w = seal_raw(&keys.c2s, ty, &h(13, 7, control), &payload);
+        let i = gate.inspect(w.bytes(), client_addr(), NOW).unwrap();
+        let Action::Reply(err, Refusal::Malformed) = gate.commit(&i, NOW) else {
+            panic!("{what}: no error")
+        };
+        let reason = u32::from_be_bytes([
+            err.buf[HEADER_LEN],
+            err.buf[HEADER_LEN + 1],
+            err.buf[HEADER_LEN + 2],
+            err.buf[HEADER_LEN + 3],
+        ]);
+        let name = DecodeError::from_index(reason as usize).unwrap().name();
+        v.push((
+            format!(
+                "`{}` (0x{:02X}), client, seq 13 instead, {what} (verified; does not decode)",
+                ty.name(),
+                ty as u8
+            ),
+            "K_c2s",
+            w,
+        ));
+        v.push((
+            format!("`error` (0x85), bridge, reason {reason} `{name}`, of seq 13"),
+            "K_s2c",
+            err,
+        ));
+    }
     // A. The client closes.
     {
         let (mut gate, _) = main_line(&mut ClientAuth::new(psk.clone()));
@@ -519,7 +579,7 @@ fn vectors_verify_on_both_sides() {
             .collect()
     };
     let mut client: Vec<u32> = (1..=13).collect();
-    client.extend([14, 14, 0x8000_0002]);
+    client.extend([13, 13, 13, 13, 14, 14, 0x8000_0002]);
     assert_eq!(numbers("client"), client);
     assert_eq!(numbers("kernel"), [500, 501, 502, 503, 504, 504]);
     assert!(numbers("bridge").iter().all(|q| *q == 0));
@@ -541,6 +601,10 @@ fn vectors_verify_on_both_sides() {
         errors,
         [
             (8, 13),
+            (7, 13),
+            (9, 13),
+            (10, 13),
+            (11, 13),
             (0x100, 14),
             (0x103, 13),
             (0x102, 13),
