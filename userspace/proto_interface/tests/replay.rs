@@ -1429,7 +1429,7 @@ fn a_held_back_open_proof_never_replaces_the_session_and_one_session_opens() {
 }
 
 /// A client that does abandon an attempt (a new `open_session` after its
-/// proof went out, as the library once did), its old proof delivered late
+/// proof went out; `virtuose_api` never does), its old proof delivered late
 /// from the same address: refused (`stale_proof`), the live session
 /// stays. A copy of the live session's own proof gets its session_ack
 /// again. The key holder on another port still takes the session.

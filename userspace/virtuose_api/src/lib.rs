@@ -653,7 +653,9 @@ impl VirtContext {
                 .as_ref()
                 .and_then(|a| lock_poisoned(a).pending_proof());
             let cookie_dies = vc.inner.lock().cookie_at.map(|t| t + COOKIE_LIFE);
-            let proof_alive = proof.is_some() && cookie_dies.is_some_and(|d| Instant::now() < d);
+            // (The receiver notes the cookie's time under the same lock as
+            // the proof: a proof without it cannot be seen.)
+            let proof_alive = proof.is_some() && cookie_dies.is_none_or(|d| Instant::now() < d);
             if round >= opts.attempts.max(1) && !proof_alive {
                 break;
             }
@@ -1247,8 +1249,10 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
                         timestamp_us: inner.now_us(),
                     };
                     let proof = g.prove(&h);
-                    drop(g);
+                    // Noted before the auth lock goes (lock order: auth,
+                    // then state, everywhere both are held).
                     inner.lock().cookie_at = Some(Instant::now());
+                    drop(g);
                     if let Some(w) = proof {
                         if inner.sock.send(w.bytes()).is_ok() {
                             inner.lock().stats.sent += 1;

@@ -205,7 +205,7 @@ fn a_session_the_bridge_ends_is_reported_and_closed_in_proto_in() {
         std::thread::sleep(Duration::from_millis(10));
     }
     assert_eq!(p.kernel.lock().unwrap().session(), 0, "PROTO_IN closed it");
-    // Every call but close now fails with the reason: set-points,
+    // Every call but close then fails with the reason: set-points,
     // requests and readings (the last answer is not the arm's any more).
     for r in [
         vc.set_position(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
