@@ -113,13 +113,13 @@ check_num "module: exactly one session opened" "$(gv hap_stats.txt sessions_open
 check_num "bridge and module count the same sessions" "$(gv proto_interface.txt sessions_opened)" '==' "$(gv hap_stats.txt sessions_opened)"
 # Accounting, component by component.
 rcv=$(gv proto_interface.txt received); fwd=$(gv proto_interface.txt forwarded); rej=$(gv proto_interface.txt rejected)
-acct=$(sum "$(gv proto_interface.txt forwarded)" "$(gv proto_interface.txt write_errors)" "$(gv proto_interface.txt retransmits_reacked)" "$rej" "$(gv proto_interface.txt cookies_sent)")
+acct=$(sum "$(gv proto_interface.txt forwarded)" "$(gv proto_interface.txt write_errors)" "$(gv proto_interface.txt retransmits_reacked)" "$(gv proto_interface.txt proofs_reacked)" "$rej" "$(gv proto_interface.txt cookies_sent)")
 udp=$(sed -n 's/^HAP-UDP .*InDatagrams=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)
 rcvbuf=$(sed -n 's/^HAP-UDP .*RcvbufErrors=\([0-9]*\).*/\1/p' "$qlog" | tr -d '\r' | head -1)
 sent_hostile=$(sed -n 's/^sent \([0-9]*\) hostile.*/\1/p' "$results/garbage.txt")
 echo "# FIGURE datagrams: the guest's UDP delivered $udp to the bridge ($rcvbuf dropped for a full receive buffer); hostile sent ${sent_hostile:-0}, client VPr sent $(sv vpr_sent): QEMU's user network delivered what the emulated guest could take"
 check_num "guest: every datagram delivered to the bridge's socket was read (UDP InDatagrams = bridge received)" "$rcv" '==' "$udp"
-check_num "bridge: each datagram counted once (received = forwarded + write errors + re-acked + refused by reason + answered with a cookie)" "$rcv" '==' "$acct"
+check_num "bridge: each datagram counted once (received = forwarded + write errors + re-acked + a proof's session_ack again + refused by reason + answered with a cookie)" "$rcv" '==' "$acct"
 check_num "bridge: no write error to rtf_in" "$(gv proto_interface.txt write_errors)" '==' 0
 check_num "bridge: hostile datagrams refused (bad magic, sizes, unauthenticated v1, rate limited)" "$(sum "$(gv proto_interface.txt rejected_bad_magic)" "$(gv proto_interface.txt rejected_oversize)" "$(gv proto_interface.txt rejected_undersize)")" '>=' 1
 check_num "module: every forwarded frame arrived (frames_in = bridge forwarded + the bridge's own session closes)" "$(gv hap_stats.txt frames_in)" '==' "$(sum "$fwd" "$(gv proto_interface.txt kernel_closes)")"

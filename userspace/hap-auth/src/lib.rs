@@ -14,11 +14,14 @@
 //!   a 5 s epoch and the client's nonce: no state kept) → `open_proof` (the
 //!   client's proof of the key over it) → `session_ack`. Nothing is
 //!   committed before the proof; accepted proofs are remembered for the
-//!   cookie's lifetime.
+//!   cookie's lifetime, answered `open_session` nonces for
+//!   [`HELLO_MEMORY_S`], and a proof commits only forward: from the live
+//!   session's client address, only a newer one than the session's own.
 //! - [`Gate`]: the bridge's side. Every client datagram is checked (length,
 //!   tag, cookie, session, anti-replay window) before the bridge turns it
 //!   into the v1 frame the kernel reads; every refusal has a [`Refusal`]
-//!   reason.
+//!   reason. The budgets that ration what verified handshakes may cost live
+//!   in the bridge (`proto_interface`'s `ratelimit`).
 //! - [`ClientAuth`]: the client's side (handshake, sealing requests,
 //!   verifying replies).
 //!
@@ -31,11 +34,11 @@ use std::path::Path;
 use std::time::Duration;
 
 use hap_core::protocol::{
-    decode, read_header, seal_crc, write_header, DecodeError, Frame, FrameHeader, FrameType,
-    SeqCheck, SeqWindow, CTRL_ACK_REQUEST, ERROR_NO_SESSION, ERROR_REFUSED, HEADER_LEN, MAGIC,
-    MAX_FRAME_LEN,
+    decode, read_header, seal_crc, seq_newer, write_header, DecodeError, Frame, FrameHeader,
+    FrameType, SeqCheck, SeqWindow, CTRL_ACK_REQUEST, ERROR_NO_SESSION, ERROR_REFUSED, HEADER_LEN,
+    MAGIC, MAX_FRAME_LEN,
 };
-use hmac::{Hmac, Mac};
+use hmac::{Hmac, KeyInit, Mac};
 use sha2::Sha256;
 use zeroize::{Zeroize, ZeroizeOnDrop, Zeroizing};
 
@@ -68,11 +71,24 @@ pub const COOKIE_EPOCH_S: u64 = 5;
 /// proof beyond that is refused (`handshake_busy`), nothing is forgotten
 /// early. About 0.7 MB when full.
 pub const PROOF_MEMORY: usize = 16384;
-/// Frames one direction of a session may carry: half the sequence-number
-/// space, so that serial-number comparison stays meaningful for the whole
-/// session. The bridge ends a session that reaches it (`ERROR_SEQ_EXHAUSTED`);
-/// the client opens a new one.
-pub const SESSION_FRAME_LIMIT: u64 = 1 << 31;
+/// How long the bridge remembers the client nonce (`Nc`) of every
+/// `open_session` it answered with a cookie, seconds: a copy of that
+/// `open_session`, from any address, draws nothing in that time
+/// (`hello_replay`). A client whose cookie went missing starts a new
+/// attempt with a new nonce.
+pub const HELLO_MEMORY_S: u64 = 600;
+/// Answered `open_session` nonces the bridge remembers at most (about
+/// 1 MB when full; beyond, the oldest is forgotten first).
+pub const HELLO_MEMORY: usize = 16384;
+/// The sequence span one direction of a session may cover: half the
+/// sequence-number space, so that serial-number comparison stays
+/// meaningful for the whole session. The span is counted from the first
+/// number of the session (the client's `open_proof`, the kernel's
+/// `session_ack`) to the newest, whatever the steps between them: a sender
+/// that skips numbers spends them. The bridge ends a session whose
+/// direction would reach it (`ERROR_SEQ_EXHAUSTED`); the client opens a new
+/// one.
+pub const SESSION_SEQ_SPAN: u64 = 1 << 31;
 /// The bridge's largest answer to a source not yet proven, as a multiple
 /// of the bytes received from it (QUIC's anti-amplification rule).
 pub const AMPLIFICATION_FACTOR: usize = 3;
@@ -81,7 +97,7 @@ pub const AMPLIFICATION_FACTOR: usize = 3;
 pub const ERROR_REPLACED: u32 = 0x102;
 /// `error` reason: the session expired (the client was silent too long).
 pub const ERROR_EXPIRED: u32 = 0x103;
-/// `error` reason: a direction reached [`SESSION_FRAME_LIMIT`]; open anew.
+/// `error` reason: a direction reached [`SESSION_SEQ_SPAN`]; open anew.
 pub const ERROR_SEQ_EXHAUSTED: u32 = 0x104;
 
 /// KDF labels (ASCII, no terminator).
@@ -98,13 +114,24 @@ type HmacSha256 = Hmac<Sha256>;
 /// A 32-byte MAC or derivation key.
 pub type Key = [u8; 32];
 
-/// HMAC-SHA-256 of the concatenation of `parts` under `key`.
-pub fn hmac(key: &[u8], parts: &[&[u8]]) -> Key {
-    let mut m = keyed(key);
+/// HMAC-SHA-256 of the concatenation of `parts` under `key` (wiped when
+/// dropped: most are keys).
+pub fn hmac(key: &[u8], parts: &[&[u8]]) -> Zeroizing<Key> {
+    prf(&keyed(key), parts)
+}
+
+/// HMAC-SHA-256 of the concatenation of `parts` under an already keyed
+/// state, which is kept for the next call (the clone used here is wiped
+/// when dropped, as every HMAC state is: `hmac`'s `zeroize` feature).
+fn prf(mac: &HmacSha256, parts: &[&[u8]]) -> Zeroizing<Key> {
+    let mut m = mac.clone();
     for p in parts {
         m.update(p);
     }
-    m.finalize().into_bytes().into()
+    let mut key = Zeroizing::new([0u8; 32]);
+    let out: &mut hmac::digest::Output<HmacSha256> = (&mut *key).into();
+    hmac::digest::FixedOutput::finalize_into(m, out);
+    key
 }
 
 /// The pre-shared key: not `Copy`, wiped from memory when dropped, never
@@ -122,10 +149,13 @@ impl std::fmt::Debug for Psk {
 #[derive(Debug)]
 pub enum KeyError {
     Io(std::io::Error),
+    /// Not a regular file (a directory, a device, a FIFO, a socket).
+    NotAFile(&'static str),
     /// Group or others may read or write the file.
     Permissions(u32),
-    /// Not exactly one line of 64 lowercase hexadecimal digits.
-    Format(&'static str),
+    /// Not exactly one line of 64 lowercase hexadecimal digits: what is
+    /// wrong with it.
+    Format(String),
     /// A well-formed key that must not be used.
     Weak(&'static str),
 }
@@ -134,6 +164,11 @@ impl std::fmt::Display for KeyError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             KeyError::Io(e) => write!(f, "{e}"),
+            KeyError::NotAFile(what) => write!(
+                f,
+                "{what}, not a key file (a key file is a regular file of one line; \
+                 hapctl keygen FILE writes one)"
+            ),
             KeyError::Permissions(m) => write!(
                 f,
                 "mode {m:04o}: a key file must not be accessible to group or others (chmod 600)"
@@ -205,7 +240,7 @@ impl Psk {
 
     /// Refuse keys that are not random: all zero, the published test key,
     /// fewer than [`KEY_MIN_DISTINCT`] distinct bytes or distinct successive
-    /// differences.
+    /// differences (each difference `key[i] - key[i-1]` taken modulo 256).
     pub fn check_strength(&self) -> Result<(), KeyError> {
         if self.0.iter().all(|b| *b == 0) {
             return Err(KeyError::Weak("all zero"));
@@ -240,23 +275,48 @@ impl Psk {
 
     /// Parse a key file's content: exactly 64 lowercase hex digits, then
     /// one `\n` (or nothing). No white space, sign, prefix or upper case.
-    /// Weak keys are refused.
+    /// Weak keys are refused. The error names the first fault: the first
+    /// character that is not a digit (and where), else the number of
+    /// digits.
     pub fn parse_file(s: &[u8]) -> Result<Psk, KeyError> {
-        let digits = match s.len() {
-            n if n == PSK_LEN * 2 => s,
-            n if n == KEY_FILE_LEN && s.last() == Some(&b'\n') => &s[..PSK_LEN * 2],
-            n if n < PSK_LEN * 2 => return Err(KeyError::Format("too short")),
-            _ => return Err(KeyError::Format("too long, or not one line")),
-        };
+        let digits = s.strip_suffix(b"\n").unwrap_or(s);
         let nibble = |c: u8| match c {
             b'0'..=b'9' => Some(c - b'0'),
             b'a'..=b'f' => Some(c - b'a' + 10),
             _ => None,
         };
+        if let Some((at, c)) = digits
+            .iter()
+            .enumerate()
+            .find(|(_, c)| nibble(**c).is_none())
+        {
+            let what = match *c {
+                b'\n' => "a second line".to_string(),
+                b'\r' => "a carriage return (a DOS line end?)".to_string(),
+                b' ' | b'\t' => "white space".to_string(),
+                b'A'..=b'F' => format!("an upper-case digit '{}'", *c as char),
+                c if c.is_ascii_graphic() => format!("'{}'", c as char),
+                c => format!("the byte 0x{c:02x}"),
+            };
+            return Err(KeyError::Format(format!(
+                "{what} at character {}, where only 0-9 a-f may be",
+                at + 1
+            )));
+        }
+        if digits.len() != PSK_LEN * 2 {
+            let why = if digits.is_empty() {
+                "empty".to_string()
+            } else if digits.len() < PSK_LEN * 2 {
+                format!("too short: {} hexadecimal digits", digits.len())
+            } else {
+                format!("too long: {} hexadecimal digits", digits.len())
+            };
+            return Err(KeyError::Format(why));
+        }
         let mut k = Psk([0u8; PSK_LEN]);
         for (i, b) in k.0.iter_mut().enumerate() {
             let (Some(hi), Some(lo)) = (nibble(digits[2 * i]), nibble(digits[2 * i + 1])) else {
-                return Err(KeyError::Format("a character other than 0-9 a-f"));
+                return Err(KeyError::Format("not hexadecimal".to_string()));
             };
             *b = (hi << 4) | lo;
         }
@@ -268,16 +328,32 @@ impl Psk {
     /// group or other permission (like ssh's private keys). The buffer that
     /// held the digits is wiped.
     pub fn load(path: &Path) -> Result<Psk, KeyError> {
+        // What the path is, before opening it (opening a FIFO would wait
+        // for a writer), and again once open (it may have changed).
+        let kind = |m: &std::fs::Metadata| -> Result<(), KeyError> {
+            if m.is_dir() {
+                Err(KeyError::NotAFile("a directory"))
+            } else if !m.is_file() {
+                Err(KeyError::NotAFile("a device, FIFO or socket"))
+            } else {
+                Ok(())
+            }
+        };
+        kind(&std::fs::metadata(path).map_err(KeyError::Io)?)?;
         let mut f = std::fs::File::open(path).map_err(KeyError::Io)?;
+        let meta = f.metadata().map_err(KeyError::Io)?;
+        kind(&meta)?;
         #[cfg(unix)]
         {
             use std::os::unix::fs::PermissionsExt;
-            let mode = f.metadata().map_err(KeyError::Io)?.permissions().mode() & 0o7777;
+            let mode = meta.permissions().mode() & 0o7777;
             if mode & 0o077 != 0 {
                 return Err(KeyError::Permissions(mode));
             }
         }
-        let mut buf = Zeroizing::new([0u8; KEY_FILE_LEN + 1]);
+        // Room for one more byte than a key and a newline, to tell a file
+        // of 65 characters from a longer one without reading it all.
+        let mut buf = Zeroizing::new([0u8; KEY_FILE_LEN + 2]);
         let mut n = 0;
         while n < buf.len() {
             match f.read(&mut buf[n..]) {
@@ -285,6 +361,15 @@ impl Psk {
                 Ok(k) => n += k,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e) => return Err(KeyError::Io(e)),
+            }
+        }
+        if n == buf.len() && !buf.contains(&b'\n') {
+            let mut more = [0u8; 1];
+            if f.read(&mut more).map_err(KeyError::Io)? > 0 {
+                return Err(KeyError::Format(format!(
+                    "too long: more than {} characters",
+                    buf.len()
+                )));
             }
         }
         Psk::parse_file(&buf[..n])
@@ -326,24 +411,24 @@ pub fn fresh_nonce() -> std::io::Result<[u8; NONCE_LEN]> {
 }
 
 /// Key of the client's `open_session`: HMAC(PSK, "hapticctrl v2 open").
-pub fn open_key(psk: &Psk) -> Key {
+pub fn open_key(psk: &Psk) -> Zeroizing<Key> {
     hmac(&psk.0, &[LABEL_OPEN])
 }
 
 /// Key of the bridge's `cookie` answering the `open_session` with nonce Nc:
 /// HMAC(PSK, "hapticctrl v2 cookie" ‖ Nc).
-pub fn cookie_key(psk: &Psk, nc: &[u8; NONCE_LEN]) -> Key {
+pub fn cookie_key(psk: &Psk, nc: &[u8; NONCE_LEN]) -> Zeroizing<Key> {
     hmac(&psk.0, &[LABEL_COOKIE, nc])
 }
 
 /// Key of the client's `open_proof`: HMAC(PSK, "hapticctrl v2 proof").
-pub fn proof_key(psk: &Psk) -> Key {
+pub fn proof_key(psk: &Psk) -> Zeroizing<Key> {
     hmac(&psk.0, &[LABEL_PROOF])
 }
 
 /// Key of the bridge's refusal of a handshake (bound to its nonce):
 /// HMAC(PSK, "hapticctrl v2 refuse" ‖ Nc).
-pub fn refuse_key(psk: &Psk, nc: &[u8; NONCE_LEN]) -> Key {
+pub fn refuse_key(psk: &Psk, nc: &[u8; NONCE_LEN]) -> Zeroizing<Key> {
     hmac(&psk.0, &[LABEL_REFUSE, nc])
 }
 
@@ -371,7 +456,17 @@ pub fn cookie_nonce(
     src: &SocketAddr,
     nc: &[u8; NONCE_LEN],
 ) -> [u8; NONCE_LEN] {
-    let full = hmac(
+    cookie_nonce_with(&keyed(secret), epoch, src, nc)
+}
+
+/// [`cookie_nonce`] under the secret's keyed state.
+fn cookie_nonce_with(
+    secret: &HmacSha256,
+    epoch: u32,
+    src: &SocketAddr,
+    nc: &[u8; NONCE_LEN],
+) -> [u8; NONCE_LEN] {
+    let full = prf(
         secret,
         &[LABEL_NS, &epoch.to_be_bytes(), &address_bytes(src), nc],
     );
@@ -386,12 +481,14 @@ pub fn epoch_of(now: Duration) -> u32 {
 }
 
 /// An HMAC-SHA-256 instance already keyed (its inner and outer pads
-/// hashed once), cloned for each frame.
+/// hashed once), cloned for each frame. Its state, and every clone's, is
+/// wiped when dropped (`hmac`'s `zeroize` feature).
 fn keyed(key: &[u8]) -> HmacSha256 {
-    <HmacSha256 as Mac>::new_from_slice(key).expect("HMAC takes any key length")
+    <HmacSha256 as KeyInit>::new_from_slice(key).expect("HMAC takes any key length")
 }
 
-/// The two directional keys of one session.
+/// The two directional keys of one session and their keyed HMAC states:
+/// all four are wiped when dropped (a clone too).
 #[derive(Clone)]
 pub struct SessionKeys {
     /// Client → controller: HMAC(PSK, "hapticctrl v2 c2s" ‖ Nc ‖ Ns).
@@ -425,13 +522,18 @@ impl Drop for SessionKeys {
 
 impl SessionKeys {
     pub fn derive(psk: &Psk, nc: &[u8; NONCE_LEN], ns: &[u8; NONCE_LEN]) -> SessionKeys {
-        let c2s = hmac(&psk.0, &[LABEL_C2S, nc, ns]);
-        let s2c = hmac(&psk.0, &[LABEL_S2C, nc, ns]);
+        SessionKeys::derive_with(&keyed(&psk.0), nc, ns)
+    }
+
+    /// [`SessionKeys::derive`] under the PSK's keyed state.
+    fn derive_with(psk: &HmacSha256, nc: &[u8; NONCE_LEN], ns: &[u8; NONCE_LEN]) -> SessionKeys {
+        let c2s = prf(psk, &[LABEL_C2S, nc, ns]);
+        let s2c = prf(psk, &[LABEL_S2C, nc, ns]);
         SessionKeys {
-            c2s_mac: keyed(&c2s),
-            s2c_mac: keyed(&s2c),
-            c2s,
-            s2c,
+            c2s_mac: keyed(&c2s[..]),
+            s2c_mac: keyed(&s2c[..]),
+            c2s: *c2s,
+            s2c: *s2c,
         }
     }
 }
@@ -496,8 +598,10 @@ pub enum Refusal {
     /// A proven `open_proof` the bridge cannot remember (its proof memory
     /// is full of proofs still alive): answered with `error` 0x101.
     HandshakeBusy,
-    /// Dropped unexamined: the global budget of `open_session` datagrams
-    /// per second is spent.
+    /// A verified `open_session` from a source IP that has not proven the
+    /// key lately, dropped: the global budget of cookies per second is spent
+    /// (the bridge is under load: only IPs that answered a cookie lately
+    /// are served; protocol.md §7.10).
     HandshakeBudget,
     /// A frame carrying another session id than the open session's
     /// (refused before its tag is computed).
@@ -512,10 +616,22 @@ pub enum Refusal {
     StraySource,
     /// Dropped unverified: the source sent too many refused datagrams.
     RateLimited,
+    /// A proven `open_proof` from the live session's client address that is
+    /// not newer (serial order) than the `open_proof` that opened that
+    /// session: an abandoned, held-back or late attempt of the same client.
+    StaleProof,
+    /// A verified `open_session` whose nonce the bridge already answered
+    /// (a recorded one, replayed, from any address).
+    HelloReplay,
+    /// A verified `open_session` beyond its source IP's handshake budget.
+    HandshakeIpBudget,
+    /// A request whose sequence number would take the session's span to
+    /// [`SESSION_SEQ_SPAN`]: the bridge ends the session (0x104).
+    SeqExhausted,
 }
 
 impl Refusal {
-    pub const COUNT: usize = 20;
+    pub const COUNT: usize = 24;
     pub const ALL: [Refusal; Refusal::COUNT] = [
         Refusal::Oversize,
         Refusal::Undersize,
@@ -537,6 +653,10 @@ impl Refusal {
         Refusal::Malformed,
         Refusal::StraySource,
         Refusal::RateLimited,
+        Refusal::StaleProof,
+        Refusal::HelloReplay,
+        Refusal::HandshakeIpBudget,
+        Refusal::SeqExhausted,
     ];
 
     pub const fn index(self) -> usize {
@@ -566,6 +686,10 @@ impl Refusal {
             Refusal::Malformed => "malformed",
             Refusal::StraySource => "stray_source",
             Refusal::RateLimited => "rate_limited",
+            Refusal::StaleProof => "stale_proof",
+            Refusal::HelloReplay => "hello_replay",
+            Refusal::HandshakeIpBudget => "handshake_ip_budget",
+            Refusal::SeqExhausted => "seq_exhausted",
         }
     }
 }
@@ -720,13 +844,25 @@ pub fn seal_session_ack(
     seal_with(&keys.s2c_mac, FrameType::SessionAck, h, &p)
 }
 
-/// The bridge's `error` refusing an authenticated `open_session` (reason
-/// `ERROR_REFUSED`: another client holds the session), under [`refuse_key`].
+/// The bridge's `error` 0x101 refusing a proven handshake it cannot
+/// remember (`handshake_busy`), under [`refuse_key`].
 pub fn seal_refusal(psk: &Psk, nc: &[u8; NONCE_LEN], h: &FrameHeader, rejected_seq: u32) -> Wire {
     let mut p = [0u8; 8];
     p[..4].copy_from_slice(&ERROR_REFUSED.to_be_bytes());
     p[4..].copy_from_slice(&rejected_seq.to_be_bytes());
     seal_raw(&refuse_key(psk, nc), FrameType::Error, h, &p)
+}
+
+/// Is `b` shaped as a v2 handshake datagram of the client (`open_session`
+/// or `open_proof`: magic, version 2, type and exact length)? The bridge
+/// examines these even from a source whose refusal budget is spent: each
+/// costs at most one HMAC to refute, and a key holder sharing an IP with a
+/// flooder must still be able to open.
+pub fn is_handshake(b: &[u8]) -> bool {
+    matches!(
+        precheck(b),
+        Ok(WireType::OpenProof | WireType::Frame(FrameType::OpenSession))
+    )
 }
 
 /// Turn a v1 controller frame read from the kernel (answer, answer twist,
@@ -855,6 +991,10 @@ pub enum Kind {
     /// `open_proof` with a valid cookie and tag, not seen before: commits a
     /// session.
     Proof,
+    /// A copy of the `open_proof` that opened the live session, from its
+    /// client's address (a retransmission after a lost `session_ack`):
+    /// answered with the session's `session_ack` again, nothing committed.
+    ProofCopy,
     /// `close_session` of the open session.
     Close,
     /// Any other request of the open session.
@@ -881,11 +1021,13 @@ pub enum Action {
     /// Write this v1 frame to the kernel's input device.
     Forward(Wire),
     /// Send this v2 frame back to the source, write nothing: the `cookie`
-    /// answering an `open_session` (no state kept; never larger than
-    /// [`AMPLIFICATION_FACTOR`] times the datagram).
+    /// answering an `open_session` (no state kept but its nonce; never
+    /// larger than [`AMPLIFICATION_FACTOR`] times the datagram).
     Challenge(Wire),
     /// Send this v2 frame back to the client, write nothing (a replayed
-    /// acknowledged request: its ack again; an authenticated but malformed
+    /// acknowledged request: its ack again, [`Refusal::Replay`]; a copy of
+    /// the live session's `open_proof`: its `session_ack` again,
+    /// [`Refusal::HandshakeReplay`]; an authenticated but malformed
     /// request: `error` with the decode reason; a proven handshake the
     /// bridge cannot remember: `error` 0x101).
     Reply(Wire, Refusal),
@@ -898,7 +1040,7 @@ pub enum EndReason {
     Replaced,
     /// The client was silent longer than the session timeout ([`ERROR_EXPIRED`]).
     Expired,
-    /// A direction reached [`SESSION_FRAME_LIMIT`] ([`ERROR_SEQ_EXHAUSTED`]).
+    /// A direction reached [`SESSION_SEQ_SPAN`] ([`ERROR_SEQ_EXHAUSTED`]).
     SeqExhausted,
 }
 
@@ -936,6 +1078,9 @@ pub struct GateCounters {
     pub cookies: u64,
     /// Replayed acknowledged requests answered with their ack again.
     pub reacked: u64,
+    /// Copies of the live session's `open_proof` answered with its
+    /// `session_ack` again.
+    pub proofs_reacked: u64,
     /// Replies the kernel sent that were not sealed (no session, another
     /// session's id, or the session ended).
     pub replies_unsealed: u64,
@@ -965,14 +1110,26 @@ struct GateSession {
     nc: [u8; NONCE_LEN],
     ns: [u8; NONCE_LEN],
     keys: SessionKeys,
+    /// The address that proved the key (the session's client).
+    client: SocketAddr,
+    /// The sequence number of the `open_proof` that opened the session:
+    /// the start of the client's span, and what a later proof from the
+    /// same address must be newer than.
+    open_seq: u32,
     /// Granted by the kernel (0 until its session_ack).
     id: u16,
     kernel_nonce: u32,
     window: SeqWindow,
     state: SessionState,
-    /// Frames accepted from the client and sealed for it in this session.
-    c2s_frames: u64,
-    s2c_frames: u64,
+    /// The sealed `session_ack` (sent again for a copy of the proof).
+    ack: Option<Wire>,
+    /// The kernel's sequence number in that `session_ack`: the start of
+    /// the controller's span.
+    s2c_first: u32,
+    s2c_newest: u32,
+    /// The kernel's frames reached [`SESSION_SEQ_SPAN`]: nothing more is
+    /// sealed, the bridge ends the session.
+    s2c_spent: bool,
     /// Sealed acks of the last acknowledged requests: (seq, type, bytes).
     acks: [Option<(u32, FrameType, Wire)>; ACK_MEMORY],
     acks_next: usize,
@@ -986,20 +1143,65 @@ struct SeenProof {
     epoch: u32,
 }
 
+/// The `open_session` nonces answered with a cookie in the last
+/// [`HELLO_MEMORY_S`] seconds (at most [`HELLO_MEMORY`]).
+#[derive(Debug, Default)]
+struct HelloMemory {
+    /// Nonce → the second it was answered.
+    by_nonce: std::collections::HashMap<[u8; NONCE_LEN], u64>,
+    /// (nonce, second answered), oldest first.
+    order: std::collections::VecDeque<([u8; NONCE_LEN], u64)>,
+}
+
+impl HelloMemory {
+    /// Was `nc` answered in the last [`HELLO_MEMORY_S`] before `now_s`?
+    fn answered(&self, nc: &[u8; NONCE_LEN], now_s: u64) -> bool {
+        self.by_nonce
+            .get(nc)
+            .is_some_and(|t| now_s.saturating_sub(*t) < HELLO_MEMORY_S)
+    }
+
+    fn remember(&mut self, nc: [u8; NONCE_LEN], now_s: u64) {
+        while let Some((old, t)) = self.order.front().copied() {
+            let dead = now_s.saturating_sub(t) >= HELLO_MEMORY_S;
+            if !dead && self.order.len() < HELLO_MEMORY {
+                break;
+            }
+            self.order.pop_front();
+            // The nonce may have been answered again since (its entry then
+            // carries a later time): forget only this answer.
+            if self.by_nonce.get(&old) == Some(&t) {
+                self.by_nonce.remove(&old);
+            }
+        }
+        self.by_nonce.insert(nc, now_s);
+        self.order.push_back((nc, now_s));
+    }
+
+    fn len(&self) -> usize {
+        self.by_nonce.len()
+    }
+}
+
 /// The bridge's authenticator: one session (the kernel has one), the PSK,
-/// the bridge's cookie secret, the proofs accepted in the cookies' lifetime.
+/// the bridge's cookie secret, the proofs accepted in the cookies' lifetime
+/// and the nonces of the `open_session`s it answered.
 pub struct Gate {
-    psk: Psk,
+    /// Keyed states: the PSK (to derive the per-nonce and session keys),
+    /// `K_open`, `K_proof`, and the cookie secret S (which is kept only in
+    /// this form). Each is wiped when dropped.
+    psk_mac: HmacSha256,
     k_open: HmacSha256,
     k_proof: HmacSha256,
-    secret: Zeroizing<[u8; 32]>,
+    secret_mac: HmacSha256,
     session: Option<GateSession>,
     /// Accepted proofs in the order they came (to forget them when their
     /// cookie dies) and as a set (to look one up).
     proofs: std::collections::VecDeque<SeenProof>,
     proof_set: std::collections::HashSet<([u8; NONCE_LEN], [u8; NONCE_LEN])>,
+    hellos: HelloMemory,
     kernel_nonce: u32,
-    frame_limit: u64,
+    span_limit: u64,
     /// The session a proven handshake replaced, until the bridge takes it.
     replaced: Option<Ended>,
     pub counters: GateCounters,
@@ -1018,37 +1220,47 @@ fn epoch_alive(epoch: u32, now: u32) -> bool {
     epoch == now || epoch.checked_add(1) == Some(now)
 }
 
+const BRIDGE_HEADER: FrameHeader = FrameHeader {
+    control: 0,
+    session: 0,
+    seq: 0,
+    timestamp_us: 0,
+};
+
 impl Gate {
     /// A gate with the cookie secret `secret` (tests and vectors; the bridge
-    /// uses [`Gate::with_random_secret`]).
-    pub fn new(psk: Psk, secret: [u8; 32]) -> Gate {
+    /// uses [`Gate::with_random_secret`]). Only its keyed HMAC state is
+    /// kept; the caller wipes its copy.
+    pub fn new(psk: Psk, secret: &[u8; 32]) -> Gate {
         Gate {
-            k_open: keyed(&open_key(&psk)),
-            k_proof: keyed(&proof_key(&psk)),
-            psk,
-            secret: Zeroizing::new(secret),
+            psk_mac: keyed(&psk.0),
+            k_open: keyed(&open_key(&psk)[..]),
+            k_proof: keyed(&proof_key(&psk)[..]),
+            secret_mac: keyed(secret),
             session: None,
             proofs: std::collections::VecDeque::new(),
             proof_set: std::collections::HashSet::new(),
+            hellos: HelloMemory::default(),
             kernel_nonce: 0,
-            frame_limit: SESSION_FRAME_LIMIT,
+            span_limit: SESSION_SEQ_SPAN,
             replaced: None,
             counters: GateCounters::default(),
         }
     }
 
     /// A gate with a fresh random cookie secret: every cookie of an earlier
-    /// process is refused.
+    /// process is refused. The secret is drawn into memory that is wiped
+    /// once the gate has keyed its HMAC state with it.
     pub fn with_random_secret(psk: Psk) -> std::io::Result<Gate> {
         let mut s = Zeroizing::new([0u8; 32]);
         fill_random(&mut s[..])?;
-        Ok(Gate::new(psk, *s))
+        Ok(Gate::new(psk, &s))
     }
 
-    /// Lower the frames a session may carry per direction (tests of the
-    /// session end at [`SESSION_FRAME_LIMIT`]).
-    pub fn set_frame_limit(&mut self, frames: u64) {
-        self.frame_limit = frames.clamp(1, SESSION_FRAME_LIMIT);
+    /// Lower the sequence span a session may cover per direction (tests of
+    /// the session end at [`SESSION_SEQ_SPAN`]).
+    pub fn set_frame_limit(&mut self, span: u64) {
+        self.span_limit = span.clamp(1, SESSION_SEQ_SPAN);
     }
 
     fn live(&self) -> Option<&GateSession> {
@@ -1060,6 +1272,11 @@ impl Gate {
     /// The session id the kernel granted (0: none or not yet).
     pub fn session_id(&self) -> u16 {
         self.live().map_or(0, |s| s.id)
+    }
+
+    /// `open_session` nonces remembered now.
+    pub fn hellos_remembered(&self) -> usize {
+        self.hellos.len()
     }
 
     /// End the session on the bridge's decision: the client's notice and
@@ -1079,21 +1296,20 @@ impl Gate {
             }
         }
         let h = FrameHeader {
-            control: 0,
             session: s.id,
-            seq: 0,
-            timestamp_us: 0,
+            ..BRIDGE_HEADER
         };
+        let newest = s.window.newest().unwrap_or(s.open_seq);
         let mut p = [0u8; 8];
         p[..4].copy_from_slice(&why.error_reason().to_be_bytes());
-        p[4..].copy_from_slice(&s.window.newest().unwrap_or(0).to_be_bytes());
+        p[4..].copy_from_slice(&newest.to_be_bytes());
         let notice = seal_with(&s.keys.s2c_mac, FrameType::Error, &h, &p);
         let kernel_close = (s.id != 0)
             .then(|| {
                 let h = FrameHeader {
                     control: 0,
                     session: s.id,
-                    seq: s.window.newest().unwrap_or(0).wrapping_add(1),
+                    seq: newest.wrapping_add(1),
                     timestamp_us: 0,
                 };
                 v1_from_payload(FrameType::CloseSession, &h, &[])
@@ -1126,9 +1342,11 @@ impl Gate {
 
     /// Check a client datagram from `src` at `now` (the bridge's monotonic
     /// clock) without changing anything: size, version, type; for
-    /// `open_session` the tag; for `open_proof` the epoch, the cookie, the
-    /// tag and that the proof is new; for a request the session id, the
-    /// anti-replay window, then the tag (constant time).
+    /// `open_session` the tag and the memory of answered nonces; for
+    /// `open_proof` the epoch, the cookie, the tag, that it is newer than
+    /// the live session's if it comes from that session's client, and that
+    /// the proof is new; for a request the session id, the anti-replay
+    /// window and the sequence span, then the tag (constant time).
     pub fn inspect(&self, b: &[u8], src: SocketAddr, now: Duration) -> Result<Inspected, Refusal> {
         let wt = precheck(b)?;
         let header = read_header(b).ok_or(Refusal::Undersize)?;
@@ -1158,33 +1376,7 @@ impl Gate {
         }
         let ty = match wt {
             WireType::Cookie => return Err(Refusal::NotARequest),
-            WireType::OpenProof => {
-                // Cheapest first: the epoch (no hash), the cookie (one HMAC
-                // under the bridge's secret), the tag (under the PSK), then
-                // the memory of accepted proofs.
-                let now_epoch = epoch_of(now);
-                let epoch = be32(b, HEADER_LEN + 2 * NONCE_LEN);
-                if !epoch_alive(epoch, now_epoch) {
-                    return Err(Refusal::BadCookie);
-                }
-                i.nc = nonce_at(b, HEADER_LEN);
-                i.ns = nonce_at(b, HEADER_LEN + NONCE_LEN);
-                i.epoch = epoch;
-                let expect = cookie_nonce(&self.secret, epoch, &src, &i.nc);
-                if !same_nonce(&expect, &i.ns) {
-                    return Err(Refusal::BadCookie);
-                }
-                if !verify(&self.k_proof, b, TAG_LEN) {
-                    return Err(Refusal::BadTag);
-                }
-                // A remembered proof is alive: its epoch is this one's
-                // (Ns binds the epoch), which was just checked.
-                if self.proof_set.contains(&(i.nc, i.ns)) {
-                    return Err(Refusal::HandshakeReplay);
-                }
-                i.kind = Kind::Proof;
-                return Ok(i);
-            }
+            WireType::OpenProof => return self.inspect_proof(b, i, now),
             WireType::Frame(ty) => ty,
         };
         if !ty.is_request() {
@@ -1196,6 +1388,11 @@ impl Gate {
                 return Err(Refusal::BadTag);
             }
             i.nc = nonce_at(b, HEADER_LEN);
+            // A recorded open_session, replayed from any address, draws
+            // nothing while its nonce is remembered.
+            if self.hellos.answered(&i.nc, now.as_secs()) {
+                return Err(Refusal::HelloReplay);
+            }
             i.epoch = epoch_of(now);
             i.kind = Kind::Hello;
             return Ok(i);
@@ -1210,13 +1407,23 @@ impl Gate {
         if header.session != s.id || s.id == 0 {
             return Err(Refusal::WrongSession);
         }
-        if s.c2s_frames >= self.frame_limit {
-            // The bridge ends such a session at once (`exhausted`); until
-            // then nothing more of it is accepted.
-            return Err(Refusal::NoSession);
-        }
         match s.window.check(header.seq) {
-            SeqCheck::Newer | SeqCheck::InWindow => {}
+            SeqCheck::Newer => {
+                // The span from the session's first number (the open_proof)
+                // to this one, whatever the steps: the newest is less than
+                // the limit past the first and this one less than 2^31 past
+                // the newest, so the 32-bit difference is the exact span.
+                // Refused only once the tag verified: the bridge ends the
+                // session on it, which a stranger must not be able to ask.
+                let span = u64::from(header.seq.wrapping_sub(s.open_seq));
+                if span >= self.span_limit {
+                    if !verify(&s.keys.c2s_mac, b, TAG_LEN) {
+                        return Err(Refusal::BadTag);
+                    }
+                    return Err(Refusal::SeqExhausted);
+                }
+            }
+            SeqCheck::InWindow => {}
             SeqCheck::Duplicate => {
                 let reack = header.control & CTRL_ACK_REQUEST != 0
                     && s.acks
@@ -1240,29 +1447,90 @@ impl Gate {
         Ok(i)
     }
 
+    fn inspect_proof(
+        &self,
+        b: &[u8],
+        mut i: Inspected,
+        now: Duration,
+    ) -> Result<Inspected, Refusal> {
+        // Cheapest first: the epoch (no hash), the cookie (one HMAC under
+        // the bridge's secret), the tag (under the PSK), then the live
+        // session and the memory of accepted proofs.
+        let now_epoch = epoch_of(now);
+        let epoch = be32(b, HEADER_LEN + 2 * NONCE_LEN);
+        if !epoch_alive(epoch, now_epoch) {
+            return Err(Refusal::BadCookie);
+        }
+        i.nc = nonce_at(b, HEADER_LEN);
+        i.ns = nonce_at(b, HEADER_LEN + NONCE_LEN);
+        i.epoch = epoch;
+        let expect = cookie_nonce_with(&self.secret_mac, epoch, &i.src, &i.nc);
+        if !same_nonce(&expect, &i.ns) {
+            return Err(Refusal::BadCookie);
+        }
+        if !verify(&self.k_proof, b, TAG_LEN) {
+            return Err(Refusal::BadTag);
+        }
+        if let Some(s) = self.live().filter(|s| s.client == i.src) {
+            if same_nonce(&s.nc, &i.nc) && same_nonce(&s.ns, &i.ns) {
+                // The proof that opened the live session, again from its
+                // client: its session_ack went missing. Answered once the
+                // kernel granted the session; before, dropped.
+                if s.state == SessionState::Open && s.ack.is_some() {
+                    i.kind = Kind::ProofCopy;
+                    return Ok(i);
+                }
+                return Err(Refusal::HandshakeReplay);
+            }
+            // A proof commits only forward: from the client of the live
+            // session, an attempt sent before the one that opened it (held
+            // back, late, or abandoned by the client) is refused.
+            if !seq_newer(i.header.seq, s.open_seq) {
+                return Err(Refusal::StaleProof);
+            }
+        }
+        // A remembered proof is alive: its epoch is this one's (Ns binds
+        // the epoch), which was just checked.
+        if self.proof_set.contains(&(i.nc, i.ns)) {
+            return Err(Refusal::HandshakeReplay);
+        }
+        i.kind = Kind::Proof;
+        Ok(i)
+    }
+
     /// Commit an inspected datagram. `open_session`: the `cookie` to send
-    /// back, nothing kept. `open_proof`: remember the proof, derive the
-    /// session keys from Nc and the cookie's Ns, replace the session, and
-    /// forward a v1 `open_session`. A request: advance the window, forward
-    /// its v1 frame (or reply). The caller ends a live session first
-    /// ([`Gate::end_session`] with [`EndReason::Replaced`]) to tell its
-    /// client.
+    /// back, its nonce remembered. `open_proof`: remember the proof, derive
+    /// the session keys from Nc and the cookie's Ns, replace the session,
+    /// and forward a v1 `open_session`. A copy of the live session's proof:
+    /// its `session_ack` again. A request: advance the window, forward its
+    /// v1 frame (or reply).
     pub fn commit(&mut self, i: &Inspected, now: Duration) -> Action {
         self.counters.verified = self.counters.verified.saturating_add(1);
         let b = i.wire.bytes();
         match i.kind {
             Kind::Hello => {
-                let ns = cookie_nonce(&self.secret, i.epoch, &i.src, &i.nc);
-                let h = FrameHeader {
-                    control: 0,
-                    session: 0,
-                    seq: 0,
-                    timestamp_us: 0,
-                };
+                let ns = cookie_nonce_with(&self.secret_mac, i.epoch, &i.src, &i.nc);
+                self.hellos.remember(i.nc, now.as_secs());
                 self.counters.cookies = self.counters.cookies.saturating_add(1);
-                return Action::Challenge(seal_cookie(&self.psk, &h, &i.nc, &ns, i.epoch));
+                let key = prf(&self.psk_mac, &[LABEL_COOKIE, &i.nc]);
+                return Action::Challenge(seal_proof_frame(
+                    &key,
+                    TYPE_COOKIE,
+                    &BRIDGE_HEADER,
+                    &i.nc,
+                    &ns,
+                    i.epoch,
+                ));
             }
             Kind::Proof => return self.commit_proof(i, now),
+            Kind::ProofCopy => {
+                if let Some(ack) = self.live().and_then(|s| s.ack) {
+                    self.counters.proofs_reacked = self.counters.proofs_reacked.saturating_add(1);
+                    return Action::Reply(ack, Refusal::HandshakeReplay);
+                }
+                // inspect() saw the ack; commit() right after cannot miss it.
+                return self.malformed_reply(i, DecodeError::TooShort);
+            }
             Kind::Close | Kind::Other => {}
         }
         let Some(s) = self
@@ -1286,7 +1554,6 @@ impl Gate {
             }
         }
         s.window.accept(i.header.seq);
-        s.c2s_frames += 1;
         if i.kind == Kind::Close {
             s.state = SessionState::Closing(i.header.seq);
         }
@@ -1305,14 +1572,12 @@ impl Gate {
         let now_epoch = epoch_of(now);
         self.prune_proofs(now_epoch);
         if self.proofs.len() >= PROOF_MEMORY {
-            let h = FrameHeader {
-                control: 0,
-                session: 0,
-                seq: 0,
-                timestamp_us: 0,
-            };
+            let key = prf(&self.psk_mac, &[LABEL_REFUSE, &i.nc]);
+            let mut p = [0u8; 8];
+            p[..4].copy_from_slice(&ERROR_REFUSED.to_be_bytes());
+            p[4..].copy_from_slice(&i.header.seq.to_be_bytes());
             return Action::Reply(
-                seal_refusal(&self.psk, &i.nc, &h, i.header.seq),
+                seal_raw(&key, FrameType::Error, &BRIDGE_HEADER, &p),
                 Refusal::HandshakeBusy,
             );
         }
@@ -1331,17 +1596,23 @@ impl Gate {
         self.session = Some(GateSession {
             nc: i.nc,
             ns: i.ns,
-            keys: SessionKeys::derive(&self.psk, &i.nc, &i.ns),
+            keys: SessionKeys::derive_with(&self.psk_mac, &i.nc, &i.ns),
+            client: i.src,
+            open_seq: i.header.seq,
             id: 0,
             kernel_nonce: self.kernel_nonce,
             window,
             state: SessionState::Granting,
-            c2s_frames: 1,
-            s2c_frames: 0,
+            ack: None,
+            s2c_first: 0,
+            s2c_newest: 0,
+            s2c_spent: false,
             acks: [None; ACK_MEMORY],
             acks_next: 0,
         });
         self.counters.handshakes = self.counters.handshakes.saturating_add(1);
+        // The kernel's open_session: the proof's seq and timestamp; control
+        // 0 (the control word of a handshake frame has no meaning).
         let h = FrameHeader {
             control: 0,
             session: 0,
@@ -1355,26 +1626,31 @@ impl Gate {
 
     fn malformed_reply(&mut self, i: &Inspected, e: DecodeError) -> Action {
         let h = FrameHeader {
-            control: 0,
             session: i.header.session,
-            seq: 0,
-            timestamp_us: 0,
+            ..BRIDGE_HEADER
         };
         let mut p = [0u8; 8];
         p[..4].copy_from_slice(&(e.reason_index() as u32).to_be_bytes());
         p[4..].copy_from_slice(&i.header.seq.to_be_bytes());
-        let key = match self.session.as_ref() {
-            Some(s) if i.kind != Kind::Proof => s.keys.s2c,
-            _ => refuse_key(&self.psk, &i.nc),
+        let w = match self.session.as_ref() {
+            Some(s) if !matches!(i.kind, Kind::Proof | Kind::ProofCopy) => {
+                seal_with(&s.keys.s2c_mac, FrameType::Error, &h, &p)
+            }
+            _ => {
+                let key = prf(&self.psk_mac, &[LABEL_REFUSE, &i.nc]);
+                seal_raw(&key, FrameType::Error, &h, &p)
+            }
         };
-        Action::Reply(seal_raw(&key, FrameType::Error, &h, &p), Refusal::Malformed)
+        Action::Reply(w, Refusal::Malformed)
     }
 
-    /// Has a direction of the live session reached the frame limit? The
-    /// bridge then ends it ([`EndReason::SeqExhausted`]).
+    /// Has the kernel's direction of the live session reached the sequence
+    /// span? The bridge then ends it ([`EndReason::SeqExhausted`]); the
+    /// client's direction is refused frame by frame
+    /// ([`Refusal::SeqExhausted`]) and the bridge ends the session on the
+    /// first such refusal.
     pub fn exhausted(&self) -> bool {
-        self.live()
-            .is_some_and(|s| s.c2s_frames >= self.frame_limit || s.s2c_frames >= self.frame_limit)
+        self.live().is_some_and(|s| s.s2c_spent)
     }
 
     /// Seal a v1 frame the kernel wrote on its output device for the client.
@@ -1385,7 +1661,7 @@ impl Gate {
     /// session); after the client's `close_session`, only the kernel's ack
     /// of it (which carries id 0). `None`: nothing to send.
     pub fn seal_from_kernel(&mut self, v1: &[u8]) -> Option<Wire> {
-        let limit = self.frame_limit;
+        let limit = self.span_limit;
         let sealed = self.seal_kernel_frame(v1, limit);
         if sealed.is_none() {
             self.counters.replies_unsealed = self.counters.replies_unsealed.saturating_add(1);
@@ -1406,8 +1682,11 @@ impl Gate {
             }
             s.id = h.session;
             s.state = SessionState::Open;
-            s.s2c_frames += 1;
-            return Some(seal_session_ack(&s.keys, &h, &s.nc, &s.ns, period_us));
+            s.s2c_first = h.seq;
+            s.s2c_newest = h.seq;
+            let w = seal_session_ack(&s.keys, &h, &s.nc, &s.ns, period_us);
+            s.ack = Some(w);
+            return Some(w);
         }
         let ok = match (s.state, f) {
             (SessionState::Open, Frame::Error { reason, .. })
@@ -1425,11 +1704,21 @@ impl Gate {
             ) => acked_seq == seq,
             _ => false,
         };
-        if !ok || s.s2c_frames >= limit {
+        if !ok || s.s2c_spent {
             return None;
         }
+        // The kernel numbers its frames +1 each, for all sessions: the span
+        // from this session's session_ack to its newest frame (exact in 32
+        // bits: the newest is less than the limit past the first, a newer
+        // frame less than 2^31 past the newest).
+        if seq_newer(h.seq, s.s2c_newest) {
+            if u64::from(h.seq.wrapping_sub(s.s2c_first)) >= limit {
+                s.s2c_spent = true;
+                return None;
+            }
+            s.s2c_newest = h.seq;
+        }
         let w = seal_reply_with(&s.keys.s2c_mac, v1)?;
-        s.s2c_frames += 1;
         match f {
             Frame::Ack {
                 acked_type: FrameType::CloseSession,
@@ -1470,15 +1759,25 @@ pub enum Reply {
 #[derive(Clone, Debug)]
 enum ClientState {
     Idle,
-    /// `open_session` sent with this nonce.
-    Hello([u8; NONCE_LEN]),
-    /// `cookie` received; `open_proof` to send or sent.
+    /// `open_session`s sent with these nonces (the newest last, at most
+    /// [`HELLOS_PENDING`]): the first cookie to come for any of them is
+    /// proved, the others are then ignored.
+    Hello(Vec<[u8; NONCE_LEN]>),
+    /// `cookie` received; `open_proof` to send, or sent (then kept, to be
+    /// sent again as it is until the `session_ack` comes: a new attempt
+    /// would leave this proof valid at the bridge for its cookie's life).
     Proving {
         nc: [u8; NONCE_LEN],
         ns: [u8; NONCE_LEN],
         epoch: u32,
+        proof: Option<Wire>,
     },
 }
+
+/// `open_session`s of one open whose cookie the client still takes (a
+/// bridge slow to answer the first one is not left unheard when the client
+/// sends another).
+pub const HELLOS_PENDING: usize = 8;
 
 /// The client's side: the PSK, the pending handshake and the session keys.
 #[derive(Clone, Debug)]
@@ -1486,9 +1785,13 @@ pub struct ClientAuth {
     psk: Psk,
     pending: ClientState,
     keys: Option<SessionKeys>,
-    /// Frames sealed in this session (at most [`SESSION_FRAME_LIMIT`]).
-    sealed: u64,
-    frame_limit: u64,
+    /// The sequence number of the `open_proof` of the session (the start
+    /// of its span) and the newest number sealed in it.
+    first_seq: u32,
+    newest_seq: u32,
+    /// The session's span reached the limit: nothing more is sealed.
+    spent: bool,
+    span_limit: u64,
 }
 
 impl ClientAuth {
@@ -1497,32 +1800,68 @@ impl ClientAuth {
             psk,
             pending: ClientState::Idle,
             keys: None,
-            sealed: 0,
-            frame_limit: SESSION_FRAME_LIMIT,
+            first_seq: 0,
+            newest_seq: 0,
+            spent: false,
+            span_limit: SESSION_SEQ_SPAN,
         }
     }
 
-    /// Lower the frames a session may carry (tests).
-    pub fn set_frame_limit(&mut self, frames: u64) {
-        self.frame_limit = frames.clamp(1, SESSION_FRAME_LIMIT);
+    /// Lower the sequence span a session may cover (tests).
+    pub fn set_frame_limit(&mut self, span: u64) {
+        self.span_limit = span.clamp(1, SESSION_SEQ_SPAN);
     }
 
-    /// Start a handshake with the nonce `nc` (fresh for every attempt).
-    /// Returns the `open_session`.
+    /// Send an `open_session` with the nonce `nc` (fresh for every
+    /// attempt). Returns it. While no cookie came, the cookie of an earlier
+    /// `open_session` (one of the last [`HELLOS_PENDING`]) is still taken.
     pub fn hello(&mut self, h: &FrameHeader, nc: [u8; NONCE_LEN]) -> Wire {
-        self.pending = ClientState::Hello(nc);
+        match &mut self.pending {
+            ClientState::Hello(ncs) => {
+                if ncs.len() >= HELLOS_PENDING {
+                    ncs.remove(0);
+                }
+                ncs.push(nc);
+            }
+            _ => self.pending = ClientState::Hello(vec![nc]),
+        }
         let h = FrameHeader { session: 0, ..*h };
         seal_open(&self.psk, &h, &nc)
     }
 
     /// The `open_proof` answering the cookie received (`None` before one).
-    /// Its header's sequence number starts the session's numbering.
-    pub fn prove(&self, h: &FrameHeader) -> Option<Wire> {
-        let ClientState::Proving { nc, ns, epoch } = &self.pending else {
+    /// Its header's sequence number starts the session's numbering. Asked
+    /// again in the same attempt, the same proof, byte for byte (`h` is
+    /// then ignored): a copy is harmless at the bridge (it re-sends the
+    /// `session_ack` of the session the proof opened), a second proof of
+    /// the same attempt would not be.
+    pub fn prove(&mut self, h: &FrameHeader) -> Option<Wire> {
+        let ClientState::Proving {
+            nc,
+            ns,
+            epoch,
+            proof,
+        } = &mut self.pending
+        else {
             return None;
         };
+        if let Some(w) = proof {
+            return Some(*w);
+        }
         let h = FrameHeader { session: 0, ..*h };
-        Some(seal_open_proof(&self.psk, &h, nc, ns, *epoch))
+        let w = seal_open_proof(&self.psk, &h, nc, ns, *epoch);
+        *proof = Some(w);
+        Some(w)
+    }
+
+    /// The `open_proof` sent in the pending attempt, to send again if its
+    /// `session_ack` does not come (`None`: no cookie came yet, or the
+    /// session is established).
+    pub fn pending_proof(&self) -> Option<Wire> {
+        match &self.pending {
+            ClientState::Proving { proof, .. } => *proof,
+            _ => None,
+        }
     }
 
     pub fn established(&self) -> bool {
@@ -1534,10 +1873,10 @@ impl ClientAuth {
         self.keys.as_ref()
     }
 
-    /// True once the session sealed [`SESSION_FRAME_LIMIT`] frames: open a
+    /// True once the session sealed [`SESSION_SEQ_SPAN`] frames: open a
     /// new session.
     pub fn exhausted(&self) -> bool {
-        self.keys.is_some() && self.sealed >= self.frame_limit
+        self.keys.is_some() && self.spent
     }
 
     /// Forget the session (the controller ended it, or the client closed it).
@@ -1547,14 +1886,22 @@ impl ClientAuth {
     }
 
     /// Seal a request (not `open_session`) under the session key; `None`
-    /// without a session, or once it is [`ClientAuth::exhausted`].
+    /// without a session, or when `h`'s sequence number would take the
+    /// session's span to [`SESSION_SEQ_SPAN`] (the session is then
+    /// [`ClientAuth::exhausted`]).
     pub fn seal(&mut self, h: &FrameHeader, f: &Frame) -> Option<Wire> {
         if self.exhausted() {
             return None;
         }
-        let w = seal_request(self.keys.as_ref()?, h, f)?;
-        self.sealed += 1;
-        Some(w)
+        let keys = self.keys.as_ref()?;
+        if seq_newer(h.seq, self.newest_seq) {
+            if u64::from(h.seq.wrapping_sub(self.first_seq)) >= self.span_limit {
+                self.spent = true;
+                return None;
+            }
+            self.newest_seq = h.seq;
+        }
+        seal_request(keys, h, f)
     }
 
     /// Verify and decode a datagram from the controller.
@@ -1564,18 +1911,21 @@ impl ClientAuth {
         let ty = match wt {
             WireType::OpenProof => return Err(Refusal::NotARequest),
             WireType::Cookie => {
-                let ClientState::Hello(nc) = self.pending else {
+                let ClientState::Hello(ncs) = &self.pending else {
                     return Err(Refusal::NoSession);
                 };
-                if nonce_at(b, HEADER_LEN) != nc
-                    || !verify(&keyed(&cookie_key(&self.psk, &nc)), b, TAG_LEN)
-                {
+                let echoed = nonce_at(b, HEADER_LEN);
+                let Some(nc) = ncs.iter().copied().find(|n| same_nonce(n, &echoed)) else {
+                    return Err(Refusal::BadTag);
+                };
+                if !verify(&keyed(&cookie_key(&self.psk, &nc)[..]), b, TAG_LEN) {
                     return Err(Refusal::BadTag);
                 }
                 self.pending = ClientState::Proving {
                     nc,
                     ns: nonce_at(b, HEADER_LEN + NONCE_LEN),
                     epoch: be32(b, HEADER_LEN + 2 * NONCE_LEN),
+                    proof: None,
                 };
                 return Ok((h, Reply::Cookie));
             }
@@ -1586,9 +1936,10 @@ impl ClientAuth {
         }
         let tl = tag_len(ty);
         if ty == FrameType::SessionAck {
-            let ClientState::Proving { nc, ns, .. } = self.pending else {
+            let ClientState::Proving { nc, ns, proof, .. } = &self.pending else {
                 return Err(Refusal::NoSession);
             };
+            let (nc, ns, proof) = (*nc, *ns, *proof);
             if nonce_at(b, HEADER_LEN) != nc || nonce_at(b, HEADER_LEN + NONCE_LEN) != ns {
                 return Err(Refusal::BadTag);
             }
@@ -1598,17 +1949,22 @@ impl ClientAuth {
             }
             let period_us = be32(b, HEADER_LEN + 2 * NONCE_LEN);
             self.keys = Some(keys);
-            self.sealed = 0;
+            // The proof's number starts the session's span.
+            let first = proof.map_or(0, |w| be32(w.bytes(), 8));
+            self.first_seq = first;
+            self.newest_seq = first;
+            self.spent = false;
             self.pending = ClientState::Idle;
             return Ok((h, Reply::SessionAck { period_us }));
         }
         if ty == FrameType::Error && h.session == 0 {
-            let nc = match &self.pending {
-                ClientState::Hello(nc) | ClientState::Proving { nc, .. } => Some(*nc),
-                ClientState::Idle => None,
+            let ncs: Vec<[u8; NONCE_LEN]> = match &self.pending {
+                ClientState::Hello(ncs) => ncs.clone(),
+                ClientState::Proving { nc, .. } => vec![*nc],
+                ClientState::Idle => Vec::new(),
             };
-            if let Some(nc) = nc {
-                if verify(&keyed(&refuse_key(&self.psk, &nc)), b, tl) {
+            for nc in ncs {
+                if verify(&keyed(&refuse_key(&self.psk, &nc)[..]), b, tl) {
                     return Ok((
                         h,
                         Reply::HandshakeRefused {
@@ -1748,6 +2104,81 @@ mod tests {
         }
     }
 
+    /// Each malformed key file is told its own fault.
+    #[test]
+    fn a_key_file_refusal_names_the_fault() {
+        let line = format!("{}\n", good_key().to_hex());
+        let msg = |b: &str| match Psk::parse_file(b.as_bytes()) {
+            Err(e @ KeyError::Format(_)) => e.to_string(),
+            r => panic!("{b:?}: {r:?}"),
+        };
+        let cases: Vec<(String, &str)> = vec![
+            (
+                format!("{}\n", &line[..63]),
+                "too short: 63 hexadecimal digits",
+            ),
+            (line[..63].to_string(), "too short: 63 hexadecimal digits"),
+            (
+                format!("{}0\n", &line[..64]),
+                "too long: 65 hexadecimal digits",
+            ),
+            (
+                format!("{}00\n", &line[..64]),
+                "too long: 66 hexadecimal digits",
+            ),
+            (String::new(), "empty"),
+            ("\n".to_string(), "empty"),
+            (
+                format!("{}\r\n", &line[..64]),
+                "a carriage return (a DOS line end?) at character 65",
+            ),
+            (
+                format!("{}\n\n", &line[..64]),
+                "a second line at character 65",
+            ),
+            (format!(" {}", &line[..64]), "white space at character 1"),
+            (line[..64].to_uppercase(), "an upper-case digit"),
+            (format!("0x{}", &line[2..64]), "'x' at character 2"),
+            (
+                format!("{}\u{e9}", &line[..63]),
+                "the byte 0xc3 at character 64",
+            ),
+        ];
+        for (input, want) in &cases {
+            let m = msg(input);
+            assert!(m.contains(want), "{input:?}: {m}");
+            assert!(m.starts_with("not a key file: "), "{m}");
+        }
+    }
+
+    #[test]
+    fn a_directory_or_a_fifo_is_not_a_key_file() {
+        let dir = std::env::temp_dir().join(format!("hap_auth_keydir_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let e = Psk::load(&dir).unwrap_err();
+        assert!(matches!(e, KeyError::NotAFile(_)), "{e:?}");
+        assert!(
+            e.to_string().starts_with("a directory, not a key file"),
+            "{e}"
+        );
+        assert!(!e.to_string().contains("chmod"), "{e}");
+        // A FIFO is refused before it is opened (an open would wait).
+        let fifo = dir.join("fifo");
+        let st = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if st.is_ok_and(|s| s.success()) {
+            let e = Psk::load(&fifo).unwrap_err();
+            assert!(e.to_string().starts_with("a device, FIFO or socket"), "{e}");
+        }
+        // A good file still loads; a missing one is the system's error.
+        let f = dir.join("key");
+        good_key().write_new(&f).unwrap();
+        assert_eq!(Psk::load(&f).unwrap(), good_key());
+        let e = Psk::load(&dir.join("none")).unwrap_err();
+        assert!(matches!(e, KeyError::Io(_)), "{e:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     #[test]
     fn weak_keys_are_refused() {
         assert!(good_key().check_strength().is_ok());
@@ -1778,12 +2209,30 @@ mod tests {
         assert_eq!(format!("{:?}", good_key()), "Psk(..)");
     }
 
+    /// What protocol.md §7.1 says is wiped: the keyed HMAC states (the
+    /// hash cores that hold the inner and outer pads' state, and the block
+    /// buffer) wipe themselves when dropped with the `zeroize` features this
+    /// crate enables; the PSK and the session keys are wiped by their own
+    /// `Drop`. (A compile-time check: the test fails to build if a feature
+    /// goes.)
+    #[test]
+    fn the_keyed_hmac_states_are_wiped_when_dropped() {
+        fn wiped<T: zeroize::ZeroizeOnDrop>() {}
+        wiped::<<Sha256 as hmac::EagerHash>::Core>();
+        wiped::<hmac::digest::block_api::Buffer<hmac::block_api::HmacCore<Sha256>>>();
+        wiped::<Sha256>();
+        wiped::<Psk>();
+        // A key derived here is handed out in a wiping box.
+        let k: Zeroizing<Key> = open_key(&good_key());
+        assert_ne!(*k, [0u8; 32]);
+    }
+
     #[test]
     fn hmac_matches_rfc4231_case_2() {
         // RFC 4231 test case 2: key "Jefe", data "what do ya want for nothing?".
         let t = hmac(b"Jefe", &[b"what do ya want ", b"for nothing?"]);
         assert_eq!(
-            hex(&t),
+            hex(&t[..]),
             "5bdcc146bf60754e6a042426089575c75a003f089d2739839dec58b964ec3843"
         );
     }

@@ -33,6 +33,7 @@ fn class_of(e: &VirtError) -> &'static str {
         VirtError::InvalidArgument(_) => "InvalidArgumentError",
         VirtError::NoData => "NoDataError",
         VirtError::Closed | VirtError::NullPointer => "ClosedError",
+        VirtError::SessionEnded { .. } => "SessionEndedError",
     }
 }
 
@@ -59,6 +60,21 @@ fn raise(
 fn to_py(py: Python<'_>, e: VirtError) -> PyErr {
     let code = haption_code(&e);
     let mut extra: Vec<(&str, Py<PyAny>)> = Vec::new();
+    if let VirtError::SessionEnded { reason, name } = &e {
+        extra.push((
+            "reason",
+            reason
+                .into_pyobject(py)
+                .map(|o| o.into_any().unbind())
+                .unwrap_or_else(|_| py.None()),
+        ));
+        extra.push((
+            "reason_name",
+            name.into_pyobject(py)
+                .map(|o| o.into_any().unbind())
+                .unwrap_or_else(|_| py.None()),
+        ));
+    }
     if let VirtError::Refused {
         request,
         reason,

@@ -79,15 +79,26 @@ def test_a_second_key_holder_takes_the_session_and_the_first_is_told(fake, key_f
     second = hc.Session(fake.address, key=key_file, reply_timeout=0.5, attempts=2)
     try:
         assert not second.closed
-        told = False
+        told = None
         for _ in range(50):
             try:
                 first.set_power_on(False)
-            except hc.VirtuoseError:
-                told = True
+            except hc.VirtuoseError as e:
+                told = e
                 break
             time.sleep(0.02)
-        assert told, "the replaced holder was never told"
+        assert told is not None, "the replaced holder was never told"
+        # An error with its code and text, every call but close() after.
+        assert isinstance(told, hc.SessionEndedError), repr(told)
+        assert isinstance(told, hc.CommunicationError)
+        assert told.code == 2
+        assert told.reason == 0x102
+        assert "replaced" in told.reason_name
+        assert "(0x102)" in told.message
+        for call in (first.get_position, lambda: first.set_position([0, 0, 0, 0, 0, 0, 1])):
+            with pytest.raises(hc.SessionEndedError) as e:
+                call()
+            assert e.value.reason == 0x102
         second.set_power_on(False)
     finally:
         second.close()

@@ -132,6 +132,23 @@ pub fn stale_report(
     }
 }
 
+/// The status that says the controller ended the session (`e`, with its
+/// VirtuoseAPI code `code`): level ERROR; the node stops after it.
+pub fn ended_report(
+    name: &str,
+    hardware_id: &str,
+    e: &virtuose_api::VirtError,
+    code: i32,
+) -> DiagnosticStatus {
+    DiagnosticStatus {
+        level: DiagnosticStatus::ERROR,
+        name: name.to_owned(),
+        message: format!("{e} (VirtuoseAPI error {code})"),
+        hardware_id: hardware_id.to_owned(),
+        values: Vec::new(),
+    }
+}
+
 /// The coupling set-point (virtual-object pose streamed to the controller)
 /// for the subscribed `target` pose (if any) plus the added `wrench` (if
 /// any): the target itself; with a wrench, offset by the spring

@@ -36,7 +36,9 @@ use hapticctrl_ros2::msgs::{
     self, header_now, DiagnosticStatus, JointState, Joy, MsgType, PoseStamped, SetBoolRequest,
     SetBoolResponse, Twist, TwistStamped, Wrench, WrenchStamped,
 };
-use hapticctrl_ros2::{buttons, joint_names, setpoint, stale_report, status_report, STALE_AFTER};
+use hapticctrl_ros2::{
+    buttons, ended_report, joint_names, setpoint, stale_report, status_report, STALE_AFTER,
+};
 use virtuose_api::kin::{self, Frames};
 use virtuose_api::{CommandType, VirtContext, VirtError};
 
@@ -489,6 +491,19 @@ fn run(cli: Cli) -> Result<(), String> {
         if end.is_some_and(|e| Instant::now() >= e) {
             break;
         }
+        // ---- the session: if the controller ended it (another key holder
+        // took the arm, it expired, its numbers are spent, a fail-safe),
+        // the node says so on its status and stops with the error.
+        let session_ended = |e: &VirtError| {
+            let code = virtuose_api::ffi::haption_code(e);
+            let _ = pubs
+                .status
+                .publish(ended_report(&status_name, &hardware_id, e, code));
+            format!("{e} (VirtuoseAPI error {code})")
+        };
+        if let Err(e) = vc.check_session() {
+            return Err(session_ended(&e));
+        }
         // ---- wait for the next answer (or the next tick of a set rate)
         let fresh = match fixed_period {
             None => match waiter.wait_newer(gen, Duration::from_millis(50)) {
@@ -574,6 +589,7 @@ fn run(cli: Cli) -> Result<(), String> {
         let s = match snapshot(&vc) {
             Ok(s) => s,
             Err(VirtError::NoData) => continue,
+            Err(e @ VirtError::SessionEnded { .. }) => return Err(session_ended(&e)),
             Err(e) => return Err(format!("reading the controller's answer: {e}")),
         };
         c.answers += 1;

@@ -322,3 +322,164 @@ fn set_rate_goes_stale_when_the_controller_stops() {
     let stale = stale.expect("a STALE status after the controller stopped");
     assert!(stale.message.contains("no answer"), "{stale:?}");
 }
+
+/// An authenticated controller in one thread: hap-auth's gate (what the
+/// bridge runs) in front of hap-core's PROTO_IN, an answer every 1 ms while
+/// a session is open; a proven handshake takes the session and the client
+/// it replaced is told (`error` 0x102), as the bridge does.
+fn auth_peer(psk: hap_auth::Psk) -> (String, std::sync::Arc<std::sync::atomic::AtomicBool>) {
+    use hap_auth::{Action, Gate, Kind};
+    use hap_core::proto_in::ProtoIn;
+    use hap_core::protocol::{encode, Answer, Frame, FrameHeader, MAX_FRAME_LEN};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let sock = std::net::UdpSocket::bind("127.0.0.1:0").expect("bind");
+    sock.set_read_timeout(Some(Duration::from_millis(1)))
+        .expect("timeout");
+    let addr = format!("127.0.0.1#{}", sock.local_addr().expect("addr").port());
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    let st = stop.clone();
+    std::thread::spawn(move || {
+        let mut gate = Gate::with_random_secret(psk).expect("gate");
+        let mut kernel = ProtoIn::new();
+        let t0 = Instant::now();
+        let mut buf = [0u8; 256];
+        let mut seq = 0u32;
+        let mut client = None;
+        let mut next = Instant::now();
+        while !st.load(Ordering::SeqCst) {
+            let mut out: Vec<Frame> = Vec::new();
+            if let Ok((n, src)) = sock.recv_from(&mut buf) {
+                if let Ok(i) = gate.inspect(&buf[..n], src, t0.elapsed()) {
+                    match gate.commit(&i, t0.elapsed()) {
+                        Action::Reply(w, _) | Action::Challenge(w) => {
+                            let _ = sock.send_to(w.bytes(), src);
+                        }
+                        Action::Forward(v1) => {
+                            if i.kind == Kind::Proof {
+                                if let (Some(e), Some(old)) = (gate.take_replaced(), client) {
+                                    let _ = sock.send_to(e.notice.bytes(), old);
+                                }
+                                client = Some(src);
+                            }
+                            out.extend(kernel.handle(v1.bytes(), 1, 1000).reply);
+                        }
+                    }
+                }
+            }
+            let session = kernel.session();
+            if session != 0 && Instant::now() >= next {
+                next = Instant::now() + Duration::from_millis(1);
+                out.push(Frame::Answer(Answer {
+                    cycle: seq,
+                    ..Answer::default()
+                }));
+            }
+            for f in out {
+                seq += 1;
+                let h = FrameHeader {
+                    control: 0,
+                    session,
+                    seq,
+                    timestamp_us: 0,
+                };
+                let mut b = [0u8; MAX_FRAME_LEN];
+                let n = encode(&h, &f, &mut b);
+                if let (Some(w), Some(c)) = (gate.seal_from_kernel(&b[..n]), client) {
+                    let _ = sock.send_to(w.bytes(), c);
+                }
+            }
+        }
+    });
+    (addr, stop)
+}
+
+/// Another key holder takes the arm from the node: the node publishes an
+/// ERROR status and stops with the error, its VirtuoseAPI code and the
+/// reason 0x102 (it does not go on as if it still had the arm).
+#[test]
+fn the_node_stops_with_the_error_when_its_session_is_replaced() {
+    use std::io::BufRead;
+    let dir = std::env::temp_dir().join(format!("ros2_replaced_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("dir");
+    let psk = hap_auth::Psk::generate().expect("key");
+    let key = dir.join("key");
+    psk.write_new(&key).expect("key file");
+    let (addr, stop) = auth_peer(psk.clone());
+    let mut child = Command::new(NODE)
+        .args([
+            "--server",
+            &format!("{addr}?key={}", key.display()),
+            "--domain-id",
+            &DOMAIN.to_string(),
+            "--dds-address",
+            "127.0.0.1",
+            "--namespace",
+            "/arm_replaced",
+            "--duration",
+            "30",
+        ])
+        .env_remove("ROS_DOMAIN_ID")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("node starts");
+    // Its stderr, line by line; the node announces itself once it runs.
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let stderr = child.stderr.take().expect("stderr");
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(line);
+        }
+    });
+    let mut lines = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while Instant::now() < deadline {
+        if let Ok(l) = rx.recv_timeout(Duration::from_millis(100)) {
+            let up = l.contains("on DDS domain");
+            lines.push(l);
+            if up {
+                break;
+            }
+        }
+    }
+    assert!(
+        lines.iter().any(|l| l.contains("on DDS domain")),
+        "the node did not start: {lines:?}"
+    );
+    // Another application with the key opens: it takes the arm.
+    let other = virtuose_api::VirtContext::open_with(
+        &addr,
+        virtuose_api::Options {
+            key: Some(psk),
+            ..Default::default()
+        },
+    )
+    .expect("the second key holder opens");
+    let deadline = Instant::now() + Duration::from_secs(15);
+    let code = loop {
+        if let Some(s) = child.try_wait().expect("wait") {
+            break s.code();
+        }
+        if Instant::now() >= deadline {
+            let _ = child.kill();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    while let Ok(l) = rx.recv_timeout(Duration::from_millis(200)) {
+        lines.push(l);
+    }
+    drop(other);
+    stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    let _ = std::fs::remove_dir_all(&dir);
+    let err = lines.join("\n");
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("replaced") && err.contains("(0x102)") && err.contains("VirtuoseAPI error 2"),
+        "{err}"
+    );
+}

@@ -92,6 +92,7 @@ fn run(n: usize, key: Option<Psk>) -> Vec<u32> {
         key: key.clone(),
         refusal_budget: 1000,
         handshake_budget: 500,
+        handshake_budget_per_ip: 100,
         rt_priority: None,
         rt_budget_percent: 25,
     };

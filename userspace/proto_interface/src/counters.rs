@@ -49,6 +49,12 @@ pub struct Counters {
     /// `cookie` answers sent, and their bytes (v2 handshakes, first round).
     pub cookies_sent: AtomicU64,
     pub cookie_bytes: AtomicU64,
+    /// Cookies sent while the global handshake budget was spent, to IPs
+    /// that answered a cookie lately (served first).
+    pub cookies_under_load: AtomicU64,
+    /// Copies of the live session's `open_proof` answered with its
+    /// `session_ack` again (the client's retransmission).
+    pub proofs_reacked: AtomicU64,
     /// Answers not sent because they exceeded 3x the datagram they answer
     /// (the anti-amplification rule; 0 unless a frame size changes).
     pub amplification_refused: AtomicU64,
@@ -119,6 +125,8 @@ impl Counters {
         row("kernel_closes", l(&self.kernel_closes));
         row("cookies_sent", l(&self.cookies_sent));
         row("cookie_bytes", l(&self.cookie_bytes));
+        row("cookies_under_load", l(&self.cookies_under_load));
+        row("proofs_reacked", l(&self.proofs_reacked));
         row("amplification_refused", l(&self.amplification_refused));
         row("rt_demotions", l(&self.rt_demotions));
         row("rt_restores", l(&self.rt_restores));

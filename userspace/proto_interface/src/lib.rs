@@ -27,7 +27,7 @@ pub mod rtbudget;
 pub mod session;
 
 use hap_auth::{Action, EndReason, Ended, Gate, Kind, Psk, Refusal};
-use ratelimit::{RateLimit, TokenBucket};
+use ratelimit::{HandshakeBudget, RateLimit, Served};
 use rtbudget::RtBudget;
 
 use std::fs::{File, OpenOptions};
@@ -61,9 +61,13 @@ pub struct Config {
     /// Refused datagrams per second and source IP before that IP is
     /// dropped unexamined (0: no limit).
     pub refusal_budget: u32,
-    /// `open_session` datagrams per second the bridge examines, all sources
-    /// together (bursts of twice that; 0: no limit).
+    /// Cookies per second (answers to verified `open_session`s), all
+    /// sources together (bursts of twice that; 0: no limit); IPs that
+    /// answered a cookie lately do not wait on it.
     pub handshake_budget: u32,
+    /// Cookies per second and source IP (bursts of twice that; 0: no
+    /// limit).
+    pub handshake_budget_per_ip: u32,
     /// The SCHED_FIFO priority the process was given (`--rt-priority`), so
     /// that the SERVER thread can return to it; `None`: SCHED_OTHER.
     pub rt_priority: Option<i32>,
@@ -288,7 +292,11 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
     let mut dev: Option<File> = None;
     let mut stats_warned = false;
     let mut limit = RateLimit::new(cfg.refusal_budget);
-    let mut hello_budget = TokenBucket::new(cfg.handshake_budget, Instant::now());
+    let mut hellos = HandshakeBudget::new(
+        cfg.handshake_budget_per_ip,
+        cfg.handshake_budget,
+        Instant::now(),
+    );
     // The gate's clock (cookie epochs): monotonic, from the bridge's start.
     let clock = Instant::now();
     let mut refusal_log = [None; Refusal::COUNT];
@@ -390,23 +398,25 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
         Counters::inc(&shared.counters.received);
         let data = &buf[..n];
         let now = Instant::now();
-        if !limit.allow(src, session.client(), now) {
+        // A source whose refusals are over budget is dropped before any
+        // HMAC, but for the session's client and for handshake frames (at
+        // most one HMAC each: a key holder behind the flooder's IP still
+        // opens). Every drop is charged to the source's IP.
+        let examined_anyway = shared.gate.is_some() && hap_auth::is_handshake(data);
+        if !examined_anyway && !limit.allow(src, session.client(), now) {
             shared.counters.refuse(Refusal::RateLimited);
-            continue;
-        }
-        // An open_session (v2 type byte 1) costs two HMACs and a reply:
-        // the global budget is checked before any of it.
-        if shared.gate.is_some()
-            && data.get(2..4) == Some(&[hap_auth::VERSION, 1][..])
-            && !hello_budget.take(now)
-        {
-            shared.counters.refuse(Refusal::HandshakeBudget);
+            limit.charge(src, now);
             continue;
         }
         let step = match &shared.gate {
             Some(gate) => {
                 let clock_now = now.saturating_duration_since(clock);
-                let mut ctx = Ctx { sock, shared, cfg };
+                let mut ctx = Ctx {
+                    sock,
+                    shared,
+                    cfg,
+                    hellos: &mut hellos,
+                };
                 authenticated(gate, &mut session, src, data, &mut ctx, now, clock_now)
             }
             None => insecure(&mut session, src, data, shared, now),
@@ -416,6 +426,18 @@ fn server_loop(cfg: &Config, sock: &UdpSocket, shared: &Shared) {
                 shared.counters.refuse(r);
                 limit.charge(src, now);
                 log_refusal(&mut refusal_log, r, src, now);
+                if r == Refusal::SeqExhausted {
+                    // The key holder's request would take its session's
+                    // numbers to 2^31: the session ends (0x104).
+                    if let Some(g) = &shared.gate {
+                        let had = session.end();
+                        if let Some(e) = lock(g).end_session(EndReason::SeqExhausted) {
+                            end_in_module(&e, had, sock, dev.as_mut(), shared, cfg);
+                            Counters::inc(&shared.counters.sessions_ended_by_bridge);
+                        }
+                        publish_session(shared, &session);
+                    }
+                }
                 continue;
             }
             Step::Done => continue,
@@ -515,6 +537,7 @@ struct Ctx<'a> {
     sock: &'a UdpSocket,
     shared: &'a Shared,
     cfg: &'a Config,
+    hellos: &'a mut HandshakeBudget,
 }
 
 /// Send `w` to `to`, counting a failure.
@@ -577,10 +600,19 @@ fn authenticated(
         Err(r) => return Step::Refused(r),
     };
     let decision = match i.kind {
-        Kind::Hello => Decision::Forward,
+        Kind::Hello => match ctx.hellos.allow_hello(src.ip(), now) {
+            Err(r) => return Step::Refused(r),
+            Ok(Served::First { under_load: true }) => {
+                Counters::inc(&shared.counters.cookies_under_load);
+                Decision::Forward
+            }
+            Ok(_) => Decision::Forward,
+        },
+        Kind::ProofCopy => session.admit(src, FrameKind::Other, now),
         Kind::Proof => {
             let before = session.client();
             session.admit_proven(src, now);
+            ctx.hellos.proven(src.ip(), now);
             Counters::inc(&shared.counters.verified);
             let action = g.commit(&i, clock_now);
             if let Some(e) = g.take_replaced() {
@@ -602,7 +634,7 @@ fn authenticated(
     if let Decision::Drop(r) = decision {
         return Step::Refused(r);
     }
-    if i.kind != Kind::Hello {
+    if !matches!(i.kind, Kind::Hello | Kind::ProofCopy) {
         Counters::inc(&shared.counters.verified);
     }
     let action = g.commit(&i, clock_now);
@@ -634,6 +666,9 @@ fn finish(action: Action, src: SocketAddr, ctx: &mut Ctx<'_>, received: usize) -
         Action::Reply(w, r) => {
             if r == Refusal::Replay {
                 Counters::inc(&shared.counters.retransmits_reacked);
+            } else if r == Refusal::HandshakeReplay {
+                // A copy of the live session's open_proof: its session_ack.
+                Counters::inc(&shared.counters.proofs_reacked);
             } else {
                 shared.counters.refuse(r);
                 Counters::inc(&shared.counters.refusals_answered);

@@ -63,11 +63,17 @@ struct Args {
     /// The session's client address (IP and port) is never dropped.
     #[arg(long, default_value_t = 1000)]
     refusal_budget: u32,
-    /// `open_session` datagrams per second the bridge examines, from all
-    /// sources together, bursts of twice that (0: no limit); beyond, they
-    /// are dropped unexamined (`rejected_handshake_budget`).
+    /// Cookies per second the bridge sends (each answers a verified
+    /// `open_session`: nothing without the key spends it), from all sources
+    /// together, bursts of twice that (0: no limit); beyond, verified
+    /// `open_session`s are dropped (`rejected_handshake_budget`), but for
+    /// those from IPs that answered a cookie in the last 2 minutes.
     #[arg(long, default_value_t = 500)]
     handshake_budget: u32,
+    /// Cookies per second and source IP (all its ports together), bursts
+    /// of twice that (0: no limit); beyond, `rejected_handshake_ip_budget`.
+    #[arg(long, default_value_t = 100)]
+    handshake_budget_per_ip: u32,
     /// With --rt-priority: the share of one CPU, in percent, the receiving
     /// thread may use at that priority over a 100 ms window; a window above
     /// it runs the thread as SCHED_OTHER until a window within it (a flood
@@ -93,6 +99,7 @@ fn main() -> ExitCode {
         key: None,
         refusal_budget: args.refusal_budget,
         handshake_budget: args.handshake_budget,
+        handshake_budget_per_ip: args.handshake_budget_per_ip,
         rt_priority: args.rt_priority,
         rt_budget_percent: args.rt_budget,
     };

@@ -119,6 +119,9 @@ pub fn haption_code(e: &VirtError) -> c_int {
         VirtError::InvalidArgument(_) => VIRT_E_INCORRECT_VALUE,
         VirtError::NoData => VIRT_E_VARIABLE_NOT_AVAILABLE,
         VirtError::Closed | VirtError::NullPointer => VIRT_E_INVALID_CONTEXT,
+        // The session is gone (replaced, expired, spent, or closed by the
+        // controller): the message names the reason and its code.
+        VirtError::SessionEnded { .. } => VIRT_E_COMMUNICATION_FAILURE,
     }
 }
 

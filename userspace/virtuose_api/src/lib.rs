@@ -91,6 +91,10 @@ pub enum VirtError {
     Closed,
     /// A null pointer or invalid handle was passed to the C ABI.
     NullPointer,
+    /// The controller ended the session (protocol v2: `error` 0x100 no
+    /// session, 0x102 replaced, 0x103 expired, 0x104 sequence numbers
+    /// spent): every call but `close` fails with it; open a new context.
+    SessionEnded { reason: u32, name: String },
 }
 
 impl VirtError {
@@ -106,6 +110,7 @@ impl VirtError {
             VirtError::NoData => 6,
             VirtError::Closed => 7,
             VirtError::NullPointer => 8,
+            VirtError::SessionEnded { .. } => 9,
         }
     }
 
@@ -121,6 +126,7 @@ impl VirtError {
             6 => "no data received from the controller yet",
             7 => "context closed",
             8 => "null pointer or invalid context",
+            9 => "the controller ended the session",
             _ => "unknown error code",
         }
     }
@@ -146,6 +152,10 @@ impl std::fmt::Display for VirtError {
             VirtError::NoData => write!(f, "no answer received from the controller yet"),
             VirtError::Closed => write!(f, "context closed"),
             VirtError::NullPointer => write!(f, "null pointer or invalid context"),
+            VirtError::SessionEnded { reason, name } => write!(
+                f,
+                "the controller ended the session: {name} ({reason:#x}); open a new session"
+            ),
         }
     }
 }
@@ -255,6 +265,12 @@ struct State {
     handshake_refused: Option<u32>,
     /// Why the controller ended the session (`error` 0x100, 0x102–0x104).
     session_ended: Option<u32>,
+    /// When the handshake's cookie came (protocol v2): its proof is valid
+    /// at the bridge for at most two cookie epochs from then.
+    cookie_at: Option<Instant>,
+    /// Handshake rounds the open took (each a new `open_session`, or the
+    /// pending `open_proof` again).
+    open_attempts: u32,
     session: u16,
     session_nonce: u32,
     session_ack: Option<(u16, u32)>,
@@ -314,6 +330,23 @@ impl Inner {
         self.send_stamped(frame, control, self.now_us())
     }
 
+    /// Why nothing more can be sent in this session: the controller ended
+    /// it (the reason it gave), or its sequence numbers are spent (`spent`).
+    fn ended_error(&self, spent: bool) -> VirtError {
+        match self.lock().session_ended {
+            Some(r) => session_ended_error(r),
+            None if spent => session_ended_error(hap_auth::ERROR_SEQ_EXHAUSTED),
+            None => VirtError::Closed,
+        }
+    }
+
+    /// Send bytes already sealed (the pending `open_proof` again).
+    fn send_raw(&self, b: &[u8]) -> Result<()> {
+        self.sock.send(b)?;
+        self.lock().stats.sent += 1;
+        Ok(())
+    }
+
     /// [`Inner::send`] with the header's timestamp field given.
     fn send_stamped(&self, frame: &Frame, control: u16, timestamp_us: u32) -> Result<u32> {
         let seq = self.next_seq();
@@ -338,7 +371,9 @@ impl Inner {
                     Some(a.hello(&h, hap_auth::fresh_nonce()?))
                 } else if a.exhausted() || !a.established() {
                     // Spent, or ended by the controller (`session_ended`).
-                    return Err(VirtError::Closed);
+                    let spent = a.exhausted();
+                    drop(a);
+                    return Err(self.ended_error(spent));
                 } else {
                     a.seal(&h, frame)
                 };
@@ -555,6 +590,8 @@ impl VirtContext {
             state: Mutex::new(State {
                 handshake_refused: None,
                 session_ended: None,
+                cookie_at: None,
+                open_attempts: 0,
                 session: 0,
                 session_nonce: nonce,
                 session_ack: None,
@@ -599,16 +636,50 @@ impl VirtContext {
         // twice as long as the one before (a controller that is slow to
         // answer its first handshake, e.g. on a loaded or emulated machine,
         // is not asked again and again, each retry opening a new session).
+        //
+        // Protocol v2: once the cookie came and the proof went, the attempt
+        // is never abandoned while that proof could still open a session at
+        // the bridge: each further attempt sends the same proof again (the
+        // bridge answers a copy with the same session_ack), beyond
+        // `attempts` if need be, until the cookie is dead. A new
+        // open_session (a new nonce) goes only when no cookie came.
         let mut ok = false;
         let mut wait = opts.reply_timeout;
-        for _ in 0..opts.attempts.max(1) {
-            vc.inner.send(
-                &Frame::OpenSession {
-                    client_nonce: nonce,
-                },
-                0,
-            )?;
-            let deadline = Instant::now() + wait;
+        let mut round = 0u32;
+        loop {
+            let proof = vc
+                .inner
+                .auth
+                .as_ref()
+                .and_then(|a| lock_poisoned(a).pending_proof());
+            let cookie_dies = vc.inner.lock().cookie_at.map(|t| t + COOKIE_LIFE);
+            // (The receiver notes the cookie's time under the same lock as
+            // the proof: a proof without it cannot be seen.)
+            let proof_alive = proof.is_some() && cookie_dies.is_none_or(|d| Instant::now() < d);
+            if round >= opts.attempts.max(1) && !proof_alive {
+                break;
+            }
+            round += 1;
+            vc.inner.lock().open_attempts = round;
+            match proof {
+                Some(w) if proof_alive => vc.inner.send_raw(w.bytes())?,
+                _ => {
+                    vc.inner.lock().cookie_at = None;
+                    vc.inner.send(
+                        &Frame::OpenSession {
+                            client_nonce: nonce,
+                        },
+                        0,
+                    )?;
+                }
+            }
+            let mut deadline = Instant::now() + wait;
+            if round > opts.attempts.max(1) {
+                // Past the attempts: only until the cookie is dead.
+                if let Some(d) = cookie_dies {
+                    deadline = deadline.min(d);
+                }
+            }
             wait = wait.saturating_mul(2);
             let mut st = vc.inner.lock();
             loop {
@@ -645,6 +716,23 @@ impl VirtContext {
             return Err(VirtError::Timeout("open_session"));
         }
         Ok(vc)
+    }
+
+    /// Handshake rounds the open took: 1 when the first `open_session` was
+    /// answered in time; each further round sent a new `open_session` (no
+    /// cookie came) or the pending `open_proof` again.
+    pub fn open_attempts(&self) -> u32 {
+        self.inner.lock().open_attempts
+    }
+
+    /// `Ok` while the session lasts; once the controller ended it,
+    /// [`VirtError::SessionEnded`] with its reason (every call but
+    /// [`close`](Self::close) then fails with it).
+    pub fn check_session(&self) -> Result<()> {
+        match self.inner.lock().session_ended {
+            Some(r) => Err(session_ended_error(r)),
+            None => Ok(()),
+        }
     }
 
     /// True when the session is authenticated (protocol v2).
@@ -684,7 +772,7 @@ impl VirtContext {
         if self.closed {
             Err(VirtError::Closed)
         } else {
-            Ok(())
+            self.check_session()
         }
     }
 
@@ -700,6 +788,11 @@ impl VirtContext {
                 if let Some(r) = st.replies.remove(&seq) {
                     return match r {
                         Reply::Ack => Ok(()),
+                        // The error that ended the session (the notice names
+                        // the newest request the bridge accepted).
+                        Reply::Error(reason) if st.session_ended == Some(reason) => {
+                            Err(session_ended_error(reason))
+                        }
                         Reply::Error(reason) => Err(VirtError::Refused {
                             request: name,
                             reason,
@@ -1080,7 +1173,8 @@ impl VirtContext {
         let r = self.request(Frame::CloseSession);
         self.shutdown();
         match r {
-            Err(VirtError::Timeout(_)) | Ok(()) => Ok(()),
+            // Nothing to close: the controller ended the session already.
+            Err(VirtError::Timeout(_)) | Err(VirtError::SessionEnded { .. }) | Ok(()) => Ok(()),
             Err(e) => Err(e),
         }
     }
@@ -1101,6 +1195,17 @@ impl Drop for VirtContext {
             let _ = self.inner.send(&Frame::CloseSession, 0);
             self.shutdown();
         }
+    }
+}
+
+/// How long a cookie keeps its `open_proof` valid at the bridge, at most
+/// (two cookie epochs from when the bridge made it, before it came).
+const COOKIE_LIFE: Duration = Duration::from_secs(2 * hap_auth::COOKIE_EPOCH_S);
+
+fn session_ended_error(reason: u32) -> VirtError {
+    VirtError::SessionEnded {
+        reason,
+        name: reason_name(reason),
     }
 }
 
@@ -1130,31 +1235,34 @@ fn receiver(inner: Arc<Inner>, sock: UdpSocket) {
         let decoded = match &inner.auth {
             None => decode(&buf[..n]).ok(),
             Some(a) => {
-                let r = match a.lock() {
-                    Ok(mut g) => g.open(&buf[..n]),
-                    Err(p) => p.into_inner().open(&buf[..n]),
-                };
-                match r {
-                    Ok((_, AuthReply::Cookie)) => {
-                        // The bridge's cookie: prove the key over it. The
-                        // open_proof's sequence number starts the session.
-                        let h = FrameHeader {
-                            control: 0,
-                            session: 0,
-                            seq: inner.next_seq(),
-                            timestamp_us: inner.now_us(),
-                        };
-                        let proof = match a.lock() {
-                            Ok(g) => g.prove(&h),
-                            Err(p) => p.into_inner().prove(&h),
-                        };
-                        if let Some(w) = proof {
-                            if inner.sock.send(w.bytes()).is_ok() {
-                                inner.lock().stats.sent += 1;
-                            }
+                let mut g = lock_poisoned(a);
+                let r = g.open(&buf[..n]);
+                if let Ok((_, AuthReply::Cookie)) = r {
+                    // The bridge's cookie: prove the key over it, under the
+                    // same lock (the open loop sends this proof again, never
+                    // a second one for the attempt). The open_proof's
+                    // sequence number starts the session.
+                    let h = FrameHeader {
+                        control: 0,
+                        session: 0,
+                        seq: inner.next_seq(),
+                        timestamp_us: inner.now_us(),
+                    };
+                    let proof = g.prove(&h);
+                    // Noted before the auth lock goes (lock order: auth,
+                    // then state, everywhere both are held).
+                    inner.lock().cookie_at = Some(Instant::now());
+                    drop(g);
+                    if let Some(w) = proof {
+                        if inner.sock.send(w.bytes()).is_ok() {
+                            inner.lock().stats.sent += 1;
                         }
-                        continue;
                     }
+                    continue;
+                }
+                drop(g);
+                match r {
+                    Ok((_, AuthReply::Cookie)) => continue,
                     Ok((h, AuthReply::Frame(f))) => Some((h, f)),
                     Ok((h, AuthReply::SessionAck { period_us })) => {
                         // Verified against this handshake's nonce: the v1

@@ -191,17 +191,95 @@ fn a_session_the_bridge_ends_is_reported_and_closed_in_proto_in() {
     // notice names the newest request the bridge accepted).
     let e = vc.set_command_type(CommandType::Impedance).unwrap_err();
     assert!(
-        matches!(&e, VirtError::Refused { reason: 0x103, name, .. } if name.contains("expired")),
+        matches!(&e, VirtError::SessionEnded { reason: 0x103, name } if name.contains("expired")),
         "{e:?}"
     );
+    assert!(e.to_string().contains("(0x103)"), "{e}");
     let deadline = std::time::Instant::now() + Duration::from_secs(2);
     while vc.session_ended().is_none() && std::time::Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(10));
     }
     assert_eq!(vc.session_ended(), Some(hap_auth::ERROR_EXPIRED));
+    // The peer tells the client first, then closes PROTO_IN's session.
+    while p.kernel.lock().unwrap().session() != 0 && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(10));
+    }
     assert_eq!(p.kernel.lock().unwrap().session(), 0, "PROTO_IN closed it");
-    assert!(matches!(
+    // Every call but close then fails with the reason: set-points,
+    // requests and readings (the last answer is not the arm's any more).
+    for r in [
         vc.set_position(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
-        Err(VirtError::Closed)
-    ));
+        vc.set_power_on(true),
+        vc.get_position().map(|_| ()),
+        vc.check_session(),
+    ] {
+        assert!(
+            matches!(&r, Err(VirtError::SessionEnded { reason: 0x103, .. })),
+            "{r:?}"
+        );
+    }
+    let mut vc = vc;
+    assert_eq!(vc.close(), Ok(()), "nothing to close");
+}
+
+/// Once its proof went out, the library never abandons it while the bridge
+/// could still commit it: with no session_ack coming (a bridge that answers
+/// the cookie and drops every proof), it sends the same proof again, past
+/// its `attempts`, until the cookie is dead (10 s after it came), and
+/// never a second open_session.
+#[test]
+fn a_sent_proof_is_sent_again_until_its_cookie_is_dead() {
+    let sock = UdpSocket::bind("127.0.0.1:0").unwrap();
+    sock.set_read_timeout(Some(Duration::from_millis(20)))
+        .unwrap();
+    let addr = format!("127.0.0.1#{}", sock.local_addr().unwrap().port());
+    let stop = Arc::new(AtomicBool::new(false));
+    let seen: Arc<Mutex<Vec<Vec<u8>>>> = Arc::default();
+    let (st, sn) = (stop.clone(), seen.clone());
+    std::thread::spawn(move || {
+        let mut gate = Gate::with_random_secret(psk()).unwrap();
+        let t0 = std::time::Instant::now();
+        let mut buf = [0u8; 256];
+        while !st.load(Ordering::SeqCst) {
+            if let Ok((n, src)) = sock.recv_from(&mut buf) {
+                sn.lock().unwrap().push(buf[..n].to_vec());
+                if let Ok(i) = gate.inspect(&buf[..n], src, t0.elapsed()) {
+                    if let Action::Challenge(w) = gate.commit(&i, t0.elapsed()) {
+                        let _ = sock.send_to(w.bytes(), src);
+                    }
+                }
+            }
+        }
+    });
+    let t = std::time::Instant::now();
+    let r = VirtContext::open_with(
+        &addr,
+        Options {
+            reply_timeout: Duration::from_millis(50),
+            attempts: 2,
+            key: Some(psk()),
+            ..Options::default()
+        },
+    );
+    let secs = t.elapsed().as_secs_f64();
+    stop.store(true, Ordering::SeqCst);
+    assert!(
+        matches!(r, Err(VirtError::Timeout("open_session"))),
+        "{:?}",
+        r.err()
+    );
+    let seen = seen.lock().unwrap();
+    let hellos = seen.iter().filter(|d| d[3] == 0x01).count();
+    let proofs: Vec<&Vec<u8>> = seen
+        .iter()
+        .filter(|d| d[3] == hap_auth::TYPE_OPEN_PROOF)
+        .collect();
+    println!(
+        "a proof without a session_ack: {hellos} open_session, {} open_proof (all the same \
+         bytes), gave up after {secs:.1} s",
+        proofs.len()
+    );
+    assert_eq!(hellos, 1, "no new attempt while the proof could commit");
+    assert!(proofs.len() > 2, "sent again past the 2 attempts");
+    assert!(proofs.iter().all(|p| *p == proofs[0]), "one proof, resent");
 }

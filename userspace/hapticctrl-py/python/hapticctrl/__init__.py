@@ -25,6 +25,7 @@ from ._errors import (
     NoDataError,
     NoKeyError,
     RefusedError,
+    SessionEndedError,
     VirtuoseError,
 )
 from ._native import DEFAULT_PORT, KEY_ENV, VERSION, LoopStats, Session, Tick, error_message
@@ -52,6 +53,7 @@ __all__ = [
     "NoKeyError",
     "RefusedError",
     "Session",
+    "SessionEndedError",
     "Tick",
     "VirtuoseError",
     "error_message",

@@ -49,10 +49,23 @@ class RefusedError(VirtuoseError):
     """The controller refused a request: ``request``, ``reason`` (the
     protocol's reason code) and ``reason_name``. Code ``VIRT_E_WRONG_MODE``
     when the bridge cannot take the handshake now (0x101),
-    ``VIRT_E_COMMUNICATION_FAILURE``
-    for no session, else ``VIRT_E_INCORRECT_VALUE``."""
+    ``VIRT_E_COMMUNICATION_FAILURE`` for no session (an unauthenticated
+    session; an authenticated one raises ``SessionEndedError``), else
+    ``VIRT_E_INCORRECT_VALUE``."""
 
     request: str
+    reason: int
+    reason_name: str
+
+
+class SessionEndedError(CommunicationError):
+    """The controller ended the session (``VIRT_E_COMMUNICATION_FAILURE``):
+    ``reason`` is the protocol's code and ``reason_name`` its text: 0x102
+    another key holder's handshake took it, 0x103 it expired (the client was
+    silent too long), 0x104 its sequence numbers are spent, 0x100 the
+    controller has no session (a fail-safe, a stop). Every call but
+    ``close()`` then raises it; open a new ``Session``."""
+
     reason: int
     reason_name: str
 
